@@ -1,0 +1,70 @@
+"""tdfields: tensor-decomposition feature fields for PyTorch.
+
+Every field maps ``[..., 3]`` world coordinates in metres to ``[..., C]`` features and reports its size::
+
+    import tdfields
+    f = tdfields.SixAxis([[0, 4], [0, 3], [0, 2.5]], cell_size=0.03, channels=32, rank=16)
+    feats = f(points)                      # [..., 3] -> [..., 32]
+    print(tdfields.report(f))              # kind, grid, rank, parameters, bytes, O(n)
+
+Kinds: :class:`DenseGrid` (O(n^3)), :class:`TriPlane` and :class:`VectorMatrix` (O(n^2)), :class:`CP` and
+:class:`SixAxis` (O(n)); compositions :class:`MultiResolution` and :class:`Hybrid`; :func:`build` from configs.
+"""
+
+from tdfields._version import __version__
+from tdfields.bounds import contains, enlarge_bounds, grid_shape_for
+from tdfields.checkpoint import load, load_field, save
+from tdfields.config import (
+    KINDS,
+    FieldConfig,
+    HybridConfig,
+    MultiResolutionConfig,
+    build,
+    config_from_dict,
+    load_config,
+)
+from tdfields.cp import CP
+from tdfields.decoders import MLPDecoder
+from tdfields.dense_grid import DenseGrid
+from tdfields.field import FactorSpec, Field
+from tdfields.hybrid import Hybrid
+from tdfields.interpolation import interpolate, to_grid_coords
+from tdfields.multires import MultiResolution
+from tdfields.report import FieldRow, Report, report
+from tdfields.resize import resize
+from tdfields.six_axis import SixAxis
+from tdfields.triplane import TriPlane
+from tdfields.vector_matrix import VectorMatrix
+
+__all__ = [
+    "__version__",
+    "Field",
+    "FactorSpec",
+    "DenseGrid",
+    "TriPlane",
+    "VectorMatrix",
+    "CP",
+    "SixAxis",
+    "MultiResolution",
+    "Hybrid",
+    "MLPDecoder",
+    "FieldConfig",
+    "MultiResolutionConfig",
+    "HybridConfig",
+    "KINDS",
+    "build",
+    "config_from_dict",
+    "load_config",
+    "report",
+    "Report",
+    "FieldRow",
+    "resize",
+    "save",
+    "load",
+    "load_field",
+    "enlarge_bounds",
+    "grid_shape_for",
+    "contains",
+    "interpolate",
+    "to_grid_coords",
+]

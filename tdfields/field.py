@@ -1,0 +1,179 @@
+"""The one base class every decomposition derives from.
+
+A kind is fully described by (1) its factors: named channels-last tensors, each spanning one, two or three
+of the axes x, y, z, and (2) a combine rule that turns the factors interpolated at a point into ``C`` features.
+Everything else (box handling, interpolation, parameter accounting, resizing, saving) lives here once.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar, Mapping, Sequence
+
+import torch
+from torch import nn
+
+from tdfields.bounds import as_aabb, contains, grid_shape_for
+from tdfields.interpolation import interpolate, to_grid_coords
+
+COMPLEXITIES = ("O(n)", "O(n^2)", "O(n^3)")
+
+
+class FactorSpec(tuple):
+    """``(axes, width)``: the axes a factor spans (subset of ``(0, 1, 2)`` in order) and its channel width."""
+
+    def __new__(cls, axes: Sequence[int], width: int):
+        return super().__new__(cls, (tuple(axes), int(width)))
+
+    @property
+    def axes(self) -> tuple[int, ...]:
+        return self[0]
+
+    @property
+    def width(self) -> int:
+        return self[1]
+
+
+class Field(nn.Module):
+    """A feature field ``f: R^3 -> R^C`` over an axis-aligned box, stored as interpolated factor grids.
+
+    Subclasses define :meth:`factor_specs` (which factors exist) and :meth:`combine` (how interpolated factors
+    become features). Construct with either ``cell_size`` or ``grid_shape``.
+
+    Args:
+        aabb: ``[[x0, x1], [y0, y1], [z0, z1]]`` in metres. Stored as a ``(3, 2)`` buffer (never a parameter).
+        cell_size: metres between samples; ``n_a = floor(extent_a / cell_size)`` in float32 (ESLAM's rule).
+        grid_shape: ``(n_x, n_y, n_z)`` samples per axis, instead of ``cell_size``.
+        channels: ``C``, the output width.
+        rank: the number of rank-one terms, for kinds that have one.
+        init_std: standard deviation of the normal initialisation of every factor.
+
+    Coordinates: points are world metres. Sample 0 lies on the lower face of the box and sample ``n - 1`` on the
+    upper face. Points outside the box are clamped to the border (the features there are the border features and
+    the coordinate gradient is zero); use :meth:`contains` for a validity mask.
+    """
+
+    kind: ClassVar[str] = ""
+    complexity: ClassVar[str] = ""
+    has_rank: ClassVar[bool] = False
+    default_init_std: ClassVar[float] = 0.01
+
+    def __init__(
+        self,
+        aabb,
+        *,
+        cell_size: float | None = None,
+        grid_shape: Sequence[int] | None = None,
+        channels: int,
+        rank: int | None = None,
+        init_std: float | None = None,
+    ):
+        super().__init__()
+        name = type(self).__name__
+        box = as_aabb(aabb)
+        if (cell_size is None) == (grid_shape is None):
+            raise ValueError(f"{name}: give exactly one of cell_size or grid_shape")
+        if grid_shape is not None:
+            shape = tuple(int(n) for n in grid_shape)
+            if len(shape) != 3 or min(shape) < 2:
+                raise ValueError(f"{name}: grid_shape must be three sample counts >= 2, got {tuple(grid_shape)}")
+        else:
+            shape = grid_shape_for(box, cell_size)
+        if not isinstance(channels, int) or channels < 1:
+            raise ValueError(f"{name}: channels must be a positive int, got {channels!r}")
+        if self.has_rank:
+            if not isinstance(rank, int) or rank < 1:
+                raise ValueError(f"{name}: rank must be a positive int, got {rank!r}")
+        elif rank is not None:
+            raise ValueError(f"{name}: this kind has no rank (got rank={rank})")
+        self.register_buffer("aabb", box)
+        self.grid_shape: tuple[int, int, int] = shape  # type: ignore[assignment]
+        self.channels = channels
+        self.rank = rank
+        self.cell_size = cell_size
+        self.init_std = float(self.default_init_std if init_std is None else init_std)
+        self.factors = nn.ParameterDict()
+        for fname, spec in self.factor_specs().items():
+            size = [shape[a] for a in spec.axes] + [spec.width]
+            self.factors[fname] = nn.Parameter(torch.randn(size) * self.init_std)
+
+    # -- what a kind defines -------------------------------------------------------------------------------
+    def factor_specs(self) -> dict[str, FactorSpec]:
+        """Factor name -> :class:`FactorSpec` (axes spanned, channel width)."""
+        raise NotImplementedError
+
+    def combine(self, samples: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """Interpolated factors ``{name: [N, width]}`` -> features ``[N, C]``."""
+        raise NotImplementedError
+
+    # -- the query -------------------------------------------------------------------------------------------
+    @property
+    def out_dim(self) -> int:
+        """Width ``C`` of the features this field returns."""
+        return self.channels
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        """Query features.
+
+        Args:
+            points: ``[..., 3]`` world coordinates in metres. Differentiable; never detached here.
+
+        Returns:
+            ``[..., out_dim]`` features, same leading dims, dtype of the factors.
+        """
+        if points.shape[-1] != 3:
+            raise ValueError(f"{type(self).__name__}: points must have shape [..., 3], got {tuple(points.shape)}")
+        lead = points.shape[:-1]
+        coords = to_grid_coords(points.reshape(-1, 3), self.aabb, self.grid_shape)
+        return self.features_at(coords).reshape(*lead, self.out_dim)
+
+    def features_at(self, coords: torch.Tensor) -> torch.Tensor:
+        """Features at continuous grid indices ``[N, 3]`` (see :func:`to_grid_coords`) -> ``[N, C]``."""
+        samples = {name: interpolate(self.factors[name], coords[:, list(spec.axes)])
+                   for name, spec in self.factor_specs().items()}
+        return self.combine(samples)
+
+    def contains(self, points: torch.Tensor) -> torch.Tensor:
+        """``[..., 3]`` world points -> ``[...]`` bool mask, True inside the (closed) box."""
+        return contains(self.aabb, points)
+
+    # -- accounting ------------------------------------------------------------------------------------------
+    def num_parameters(self) -> int:
+        """Number of trainable scalars: the sum of the factors' ``numel()``."""
+        return sum(p.numel() for p in self.parameters())
+
+    def parameter_breakdown(self) -> dict[str, int]:
+        """Factor name -> number of scalars."""
+        return {name: p.numel() for name, p in self.factors.items()}
+
+    def closed_form_parameters(self) -> int:
+        """Parameter count from the kind's formula and the grid shape alone (no tensors involved)."""
+        return sum(math.prod(self.grid_shape[a] for a in spec.axes) * spec.width
+                   for spec in self.factor_specs().values())
+
+    def memory_bytes(self) -> int:
+        """Bytes held by the parameters (Adam training keeps about three times this again in state and grads)."""
+        return sum(p.numel() * p.element_size() for p in self.parameters())
+
+    def spec(self) -> dict:
+        """A config dict that rebuilds this field with its current box and grid (see :func:`tdfields.build`)."""
+        out = {"kind": self.kind, "aabb": self.aabb.tolist(), "grid_shape": list(self.grid_shape),
+               "channels": self.channels, "init_std": self.init_std}
+        if self.has_rank:
+            out["rank"] = self.rank
+        return out
+
+    @classmethod
+    def from_config(cls, config) -> "Field":
+        """Build a field from a :class:`tdfields.FieldConfig`, a dict or a YAML path (see :func:`tdfields.build`)."""
+        from tdfields.config import build
+
+        field = build(config)
+        if cls is not Field and not isinstance(field, cls):
+            raise ValueError(f"config builds a {type(field).__name__}, not a {cls.__name__}")
+        return field
+
+    def extra_repr(self) -> str:
+        rank = f", rank={self.rank}" if self.has_rank else ""
+        return (f"grid_shape={self.grid_shape}, channels={self.channels}{rank}, "
+                f"params={self.num_parameters():,}, complexity={self.complexity}")

@@ -1,0 +1,91 @@
+"""Change a field's resolution or box in place, resampling its factors and the optimizer state with them.
+
+TensoRF-style coarse-to-fine training and SLAM with a growing scene box both need this. Every factor is
+resampled by evaluating its interpolant at the new sample positions in world coordinates, so a change of
+resolution and a change of box are the same operation; new samples outside the old box take border values.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import torch
+
+from tdfields.bounds import as_aabb, grid_shape_for
+from tdfields.field import Field
+from tdfields.interpolation import interpolate, to_grid_coords
+
+
+def _sample_positions(old_aabb: torch.Tensor, old_shape, new_aabb: torch.Tensor, new_shape, axes) -> torch.Tensor:
+    """Old-grid coordinates ``[prod(new sizes), len(axes)]`` of the new grid's samples along ``axes``."""
+    lines = []
+    for a in axes:
+        world = torch.linspace(float(new_aabb[a, 0]), float(new_aabb[a, 1]), new_shape[a], dtype=torch.float64)
+        pts = torch.zeros(new_shape[a], 3, dtype=torch.float64)
+        pts[:, a] = world
+        lines.append(to_grid_coords(pts, old_aabb.double(), old_shape)[:, a])
+    mesh = torch.meshgrid(*lines, indexing="ij")
+    return torch.stack([m.reshape(-1) for m in mesh], dim=-1)
+
+
+def _resample(t: torch.Tensor, coords: torch.Tensor, new_sizes: Sequence[int]) -> torch.Tensor:
+    out = interpolate(t.detach().double(), coords.to(t.device))
+    return out.reshape(*new_sizes, t.shape[-1]).to(t.dtype)
+
+
+@torch.no_grad()
+def resize(field: Field, *, grid_shape: Sequence[int] | None = None, cell_size: float | None = None,
+           aabb=None, optimizer: torch.optim.Optimizer | None = None) -> Field:
+    """Resample ``field`` to a new grid and/or box, in place, keeping optimizer state consistent.
+
+    Args:
+        field: any :class:`tdfields.Field`.
+        grid_shape: new ``(n_x, n_y, n_z)``; or
+        cell_size: new spacing in metres (``floor(extent / cell)`` samples, float32, as at construction);
+            with neither, the grid shape is kept (only the box changes).
+        aabb: new ``(3, 2)`` box in metres; default keeps the box.
+        optimizer: an optimizer holding the field's factors. Each old factor is swapped for the new one in
+            its param group, and per-parameter state tensors with the factor's shape (Adam's moments) are
+            resampled the same way; scalar state (``step``) is kept. No need to rebuild the optimizer.
+
+    Returns:
+        ``field`` itself, with new ``Parameter`` objects for every factor.
+    """
+    if grid_shape is not None and cell_size is not None:
+        raise ValueError("resize: give grid_shape or cell_size, not both")
+    old_aabb = field.aabb.detach().cpu().clone()
+    old_shape = field.grid_shape
+    new_aabb = old_aabb if aabb is None else as_aabb(aabb)
+    if cell_size is not None:
+        new_shape = grid_shape_for(new_aabb, cell_size)
+    elif grid_shape is not None:
+        new_shape = tuple(int(n) for n in grid_shape)
+        if len(new_shape) != 3 or min(new_shape) < 2:
+            raise ValueError(f"resize: grid_shape must be three sample counts >= 2, got {tuple(grid_shape)}")
+    else:
+        new_shape = old_shape
+    swaps: dict[torch.nn.Parameter, torch.nn.Parameter] = {}
+    for name, spec in field.factor_specs().items():
+        old = field.factors[name]
+        sizes = [new_shape[a] for a in spec.axes]
+        coords = _sample_positions(old_aabb, old_shape, new_aabb, new_shape, spec.axes)
+        new = torch.nn.Parameter(_resample(old, coords, sizes), requires_grad=old.requires_grad)
+        if optimizer is not None and old in optimizer.state:
+            state = optimizer.state.pop(old)
+            optimizer.state[new] = {k: _resample(v, coords, sizes) if torch.is_tensor(v) and v.shape == old.shape
+                                    else v for k, v in state.items()}
+        swaps[old] = new
+        field.factors[name] = new
+    if optimizer is not None:
+        for group in optimizer.param_groups:
+            group["params"] = [swaps.get(p, p) for p in group["params"]]
+    field.aabb.copy_(new_aabb.to(field.aabb))
+    field.grid_shape = new_shape  # type: ignore[assignment]
+    if cell_size is not None:
+        field.cell_size = cell_size
+    elif grid_shape is not None:
+        field.cell_size = None
+    assert field.num_parameters() == field.closed_form_parameters(), "resize produced inconsistent factors"
+    assert all(math.prod(p.shape) == p.numel() for p in field.parameters())
+    return field
