@@ -1,0 +1,126 @@
+"""Camera pose parameterisation: 7 numbers ``[qw, qx, qy, qz, tx, ty, tz]`` for camera-to-world.
+
+ESLAM optimises a quaternion (real part first, pytorch3d convention) and a translation as plain Euclidean
+parameters. The quaternion is never renormalised; :func:`quaternion_to_matrix` divides by ``|q|^2`` so its scale
+is harmless. :func:`matrix_to_quaternion` standardises the sign (``w >= 0``) so that the constant-velocity
+extrapolation ``2 p_{t-1} - p_{t-2}`` never mixes the two antipodal representatives of one rotation.
+
+All functions are pure PyTorch, keep leading batch dims ``[...]`` and are differentiable where stated.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Rotation matrix of a (not necessarily unit) quaternion.
+
+    Args:
+        q: ``[..., 4]`` as ``(w, x, y, z)``; any non-zero scale.
+
+    Returns:
+        ``[..., 3, 3]`` rotation matrix (differentiable w.r.t. ``q``).
+    """
+    w, x, y, z = torch.unbind(q, -1)
+    two_s = 2.0 / (q * q).sum(-1)
+    o = torch.stack(
+        (
+            1 - two_s * (y * y + z * z), two_s * (x * y - z * w), two_s * (x * z + y * w),
+            two_s * (x * y + z * w), 1 - two_s * (x * x + z * z), two_s * (y * z - x * w),
+            two_s * (x * z - y * w), two_s * (y * z + x * w), 1 - two_s * (x * x + y * y),
+        ),
+        -1,
+    )
+    return o.reshape(q.shape[:-1] + (3, 3))
+
+
+def standardize_quaternion(q: torch.Tensor) -> torch.Tensor:
+    """Flip the sign of quaternions with negative real part, so ``w >= 0``.
+
+    Args:
+        q: ``[..., 4]`` as ``(w, x, y, z)``.
+
+    Returns:
+        ``[..., 4]``, the same rotations with ``w >= 0``.
+    """
+    return torch.where(q[..., :1] < 0, -q, q)
+
+
+def matrix_to_quaternion(R: torch.Tensor) -> torch.Tensor:
+    """Unit quaternion ``(w, x, y, z)`` with ``w >= 0`` of a rotation matrix (not differentiable-safe at edges).
+
+    Uses the numerically stable branch selection of pytorch3d (the best-conditioned of four candidates).
+
+    Args:
+        R: ``[..., 3, 3]`` rotation matrices.
+
+    Returns:
+        ``[..., 4]`` unit quaternions, real part first and non-negative.
+    """
+    m = R.reshape(R.shape[:-2] + (9,))
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = torch.unbind(m, -1)
+    q_abs = torch.sqrt(
+        torch.clamp(
+            torch.stack(
+                (1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22), -1
+            ),
+            min=0.0,
+        )
+    )
+    cand = torch.stack(
+        (
+            torch.stack((q_abs[..., 0] ** 2, m21 - m12, m02 - m20, m10 - m01), -1),
+            torch.stack((m21 - m12, q_abs[..., 1] ** 2, m10 + m01, m02 + m20), -1),
+            torch.stack((m02 - m20, m10 + m01, q_abs[..., 2] ** 2, m12 + m21), -1),
+            torch.stack((m10 - m01, m20 + m02, m21 + m12, q_abs[..., 3] ** 2), -1),
+        ),
+        -2,
+    )
+    cand = cand / (2.0 * q_abs[..., None].clamp(min=0.1))
+    best = q_abs.argmax(-1)
+    q = torch.gather(cand, -2, best[..., None, None].expand(best.shape + (1, 4))).squeeze(-2)
+    q = q / q.norm(dim=-1, keepdim=True)
+    return standardize_quaternion(q)
+
+
+def pose_to_matrix(p: torch.Tensor) -> torch.Tensor:
+    """``[..., 7]`` ``(q, t)`` to ``[..., 4, 4]`` camera-to-world (differentiable)."""
+    R = quaternion_to_matrix(p[..., :4])
+    t = p[..., 4:7]
+    top = torch.cat((R, t[..., None]), -1)
+    bottom = torch.zeros(p.shape[:-1] + (1, 4), dtype=p.dtype, device=p.device)
+    bottom[..., 0, 3] = 1.0
+    return torch.cat((top, bottom), -2)
+
+
+def matrix_to_pose(T: torch.Tensor) -> torch.Tensor:
+    """``[..., 4, 4]`` (or ``[..., 3, 4]``) camera-to-world to ``[..., 7]`` ``(q, t)`` with ``w >= 0``."""
+    return torch.cat((matrix_to_quaternion(T[..., :3, :3]), T[..., :3, 3]), -1)
+
+
+def align_sign(p: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """Flip ``p``'s quaternion when it points away from ``reference``'s (``<q, q_ref> < 0``)."""
+    dot = (p[..., :4] * reference[..., :4]).sum(-1, keepdim=True)
+    q = torch.where(dot < 0, -p[..., :4], p[..., :4])
+    return torch.cat((q, p[..., 4:]), -1)
+
+
+def constant_velocity(p_prev: torch.Tensor, p_prev2: torch.Tensor) -> torch.Tensor:
+    """ESLAM's constant-speed start: ``2 p_{t-1} - p_{t-2}`` componentwise on ``[q, t]``.
+
+    The older quaternion is first put on the same hemisphere as the newer one (the sign fix ESLAM lacks), so
+    a ``q`` / ``-q`` flip between frames cannot turn the extrapolation into nonsense.
+
+    Args:
+        p_prev: ``[..., 7]`` pose at ``t - 1``.
+        p_prev2: ``[..., 7]`` pose at ``t - 2``.
+
+    Returns:
+        ``[..., 7]`` extrapolated pose with ``w >= 0``.
+    """
+    p2 = align_sign(p_prev2, p_prev)
+    out = 2 * p_prev - p2
+    q = out[..., :4]
+    q = q / q.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    return torch.cat((standardize_quaternion(q), out[..., 4:]), -1)
