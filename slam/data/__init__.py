@@ -1,0 +1,36 @@
+"""RGB-D datasets: one frame type and one sequence interface for every source.
+
+Every loader returns :class:`Frame` objects with colour ``[H, W, 3]`` float32 in [0, 1], depth ``[H, W]``
+float32 metres (0 = invalid), a ``[4, 4]`` camera-to-world ground-truth pose in the **OpenCV camera
+convention** (x right, y down, z forward; no axis flips anywhere), :class:`Intrinsics`, a timestamp in
+seconds and the frame index. See ``docs/data.md``.
+
+Datasets: ``len(ds)``, ``ds[i]``, ``ds.intrinsics``, ``ds.timestamps``, ``ds.gt_poses [N, 4, 4]``,
+``ds.name``, ``ds.gt_mesh_path`` (Path or None).
+"""
+
+from slam.data.base import RGBDDataset
+from slam.data.loader import detect_layout, load_dataset
+from slam.data.replica import ReplicaDataset
+from slam.data.scannet import ScanNetDataset
+from slam.data.tum import TUMDataset
+from slam.data.types import Frame, Intrinsics
+
+__all__ = [
+    "Frame",
+    "Intrinsics",
+    "RGBDDataset",
+    "ReplicaDataset",
+    "TUMDataset",
+    "ScanNetDataset",
+    "load_dataset",
+    "detect_layout",
+    "REFERENCE_OPTIONS",
+]
+
+#: loader options that reproduce the reference (ESLAM) configs' image processing
+REFERENCE_OPTIONS = {
+    "replica": {},
+    "scannet": {"crop_edge": 10},
+    "tum": {"crop_size": (384, 512), "crop_edge": 8},
+}

@@ -1,0 +1,288 @@
+"""TUM RGB-D benchmark sequences (native layout).
+
+::
+
+    <seq>/rgb.txt, depth.txt        "timestamp file" per line, '#' comments
+    <seq>/groundtruth.txt           "timestamp tx ty tz qx qy qz qw" camera-to-world (OpenCV camera axes)
+    <seq>/associations.txt          optional "rgb_ts rgb_file depth_ts depth_file" (TUM associate.py output)
+    <seq>/rgb/*.png, depth/*.png    8-bit RGB; 16-bit depth, metres = value / 5000, 0 = no measurement
+
+Association (reference loaders): every rgb frame takes the nearest depth frame and the ground truth at its
+timestamp, and is kept only if both are within ``max_dt`` (0.08 s); then frames closer than ``min_dt``
+(1/32 s) to the previous kept one are dropped. If ``associations.txt`` exists its rgb/depth pairs are used
+instead. Ground truth is interpolated at the rgb timestamp (linear position, slerp rotation) when it has
+samples on both sides within ``max_dt``, else the nearest sample is used. By default poses are expressed
+relative to the first kept frame (frame 0 = identity), as the reference configs' scene bounds assume.
+
+Depth is registered to the colour camera by the Kinect driver, so one camera model serves both; colour is
+undistorted with the sequence's Brown-Conrady coefficients (depth is not), as the reference does.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from slam.data.base import RGBDDataset
+from slam.data.types import Intrinsics
+from slam.errors import SlamInputError
+from slam.eval.trajectory import poses_from_tum
+
+__all__ = ["TUMDataset", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "read_tum_list"]
+
+log = logging.getLogger(__name__)
+
+TUM_DEPTH_SCALE = 5000.0
+
+#: per-sensor calibration on the raw 640x480 images: (intrinsics, distortion k1 k2 p1 p2 k3)
+TUM_CAMERAS: dict[str, tuple[Intrinsics, tuple[float, ...] | None]] = {
+    "fr1": (Intrinsics(517.3, 516.5, 318.6, 255.3, 480, 640), (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
+    "fr2": (Intrinsics(520.9, 521.0, 325.1, 249.7, 480, 640), (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)),
+    "fr3": (Intrinsics(535.4, 539.2, 320.1, 247.6, 480, 640), None),
+    # ROS default for unrectified use when the sensor is unknown
+    "default": (Intrinsics(525.0, 525.0, 319.5, 239.5, 480, 640), None),
+}
+
+
+def read_tum_list(path: Path) -> tuple[np.ndarray, list[str]]:
+    """Read a TUM ``timestamp file`` list as ``(timestamps [N] float64, files)``; SlamInputError if bad."""
+    try:
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise SlamInputError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SlamInputError(f"{path}: cannot read ({exc})") from None
+    ts, files = [], []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) < 2:
+            raise SlamInputError(f"{path}:{lineno}: expected 'timestamp filename'")
+        try:
+            ts.append(float(parts[0]))
+        except ValueError:
+            raise SlamInputError(f"{path}:{lineno}: bad timestamp {parts[0]!r}") from None
+        files.append(parts[1])
+    return np.asarray(ts, dtype=np.float64), files
+
+
+def _read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(timestamps [M], rows [M, 7])`` of a TUM ground-truth file, sorted by time."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SlamInputError(f"{path}: cannot read ({exc})") from None
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) < 8:
+            raise SlamInputError(f"{path}:{lineno}: expected 'timestamp tx ty tz qx qy qz qw'")
+        try:
+            rows.append([float(v) for v in parts[:8]])
+        except ValueError as exc:
+            raise SlamInputError(f"{path}:{lineno}: non-numeric value ({exc})") from None
+    if not rows:
+        raise SlamInputError(f"{path}: no ground-truth poses")
+    data = np.asarray(rows)
+    if not np.isfinite(data).all():
+        bad = int(np.flatnonzero(~np.isfinite(data).all(1))[0])
+        raise SlamInputError(f"{path}: ground-truth row {bad} contains NaN or inf")
+    qn = np.linalg.norm(data[:, 4:8], axis=1)
+    if np.any(np.abs(qn - 1) > 0.01):
+        bad = int(np.flatnonzero(np.abs(qn - 1) > 0.01)[0])
+        raise SlamInputError(f"{path}: ground-truth row {bad} has quaternion norm {qn[bad]:.4f} (not a rotation)")
+    data = data[np.argsort(data[:, 0], kind="stable")]
+    return data[:, 0], data[:, 1:8]
+
+
+def _nearest(sorted_ts: np.ndarray, query: np.ndarray) -> np.ndarray:
+    j = np.clip(np.searchsorted(sorted_ts, query), 1, len(sorted_ts) - 1)
+    left = sorted_ts[j - 1]
+    right = sorted_ts[j]
+    return np.where(np.abs(query - left) <= np.abs(right - query), j - 1, j)
+
+
+def _gt_at(gt_ts: np.ndarray, gt_rows: np.ndarray, query: np.ndarray, max_dt: float, interpolate: bool):
+    """Poses ``[N, 4, 4]`` at ``query`` times and a ``[N]`` mask of times with ground truth within max_dt."""
+    near = _nearest(gt_ts, query) if len(gt_ts) > 1 else np.zeros(len(query), dtype=np.int64)
+    ok = np.abs(gt_ts[near] - query) < max_dt
+    poses = poses_from_tum(gt_rows[near])
+    if interpolate and len(gt_ts) > 1:
+        j = np.searchsorted(gt_ts, query, side="right")
+        inner = (j > 0) & (j < len(gt_ts))
+        jj = np.clip(j, 1, len(gt_ts) - 1)
+        t0, t1 = gt_ts[jj - 1], gt_ts[jj]
+        inner &= (query - t0 < max_dt) & (t1 - query < max_dt) & (t1 > t0)
+        if inner.any():
+            k = np.flatnonzero(inner)
+            a = ((query[k] - t0[k]) / (t1[k] - t0[k]))[:, None]
+            pos = (1 - a) * gt_rows[jj[k] - 1, :3] + a * gt_rows[jj[k], :3]
+            rots = []
+            for kk, aa in zip(k, a[:, 0]):
+                key = Rotation.from_quat(gt_rows[[jj[kk] - 1, jj[kk]], 3:7])
+                rots.append(Slerp([0.0, 1.0], key)([aa]).as_matrix()[0])
+            poses[k, :3, :3] = np.stack(rots)
+            poses[k, :3, 3] = pos
+            ok |= inner
+    return poses, ok
+
+
+def _camera_for(root: Path) -> str:
+    name = root.resolve().name.lower()
+    for key, pat in (("fr1", r"(freiburg1|fr1)"), ("fr2", r"(freiburg2|fr2)"), ("fr3", r"(freiburg3|fr3)")):
+        if re.search(pat, name):
+            return key
+    return "default"
+
+
+class TUMDataset(RGBDDataset):
+    """A TUM RGB-D sequence (see module docstring).
+
+    Args:
+        path: the sequence folder.
+        camera: ``"auto"`` (from the folder name: freiburg1/fr1, fr2, fr3, else the ROS default),
+            or a key of :data:`TUM_CAMERAS`.
+        intrinsics, distortion: explicit calibration on the raw images (override ``camera``).
+        association: ``"auto"`` (``associations.txt`` if present, else timestamps), ``"file"`` or
+            ``"timestamps"``.
+        max_dt: seconds; largest rgb-depth and rgb-ground-truth gap accepted (reference 0.08).
+        min_dt: seconds; drop frames closer than this to the previous kept one (reference 1/32; timestamp
+            association only).
+        interpolate_gt: interpolate ground truth at the rgb timestamp (else nearest sample).
+        relative_to_first: express poses relative to the first kept frame (reference behaviour).
+        depth_scale: raw / metres (5000).
+        **options: crop_size, crop_edge, undistort, stride, max_frames (see :class:`RGBDDataset`).
+    """
+
+    def __init__(
+        self,
+        path,
+        *,
+        camera: str = "auto",
+        intrinsics: Intrinsics | None = None,
+        distortion=None,
+        association: str = "auto",
+        max_dt: float = 0.08,
+        min_dt: float = 1.0 / 32.0,
+        interpolate_gt: bool = True,
+        relative_to_first: bool = True,
+        depth_scale: float = TUM_DEPTH_SCALE,
+        **options,
+    ) -> None:
+        root = Path(path)
+        if not root.is_dir():
+            raise SlamInputError(f"{root}: TUM sequence folder not found")
+        self.name = root.name
+        assoc_file = next((root / n for n in ("associations.txt", "associate.txt") if (root / n).exists()), None)
+        if association not in ("auto", "file", "timestamps"):
+            raise SlamInputError(f"association must be auto, file or timestamps, got {association!r}")
+        if association == "file" and assoc_file is None:
+            raise SlamInputError(f"{root}: association='file' but there is no associations.txt")
+        use_file = assoc_file is not None and association != "timestamps"
+
+        if use_file:
+            rgb_ts, rgb_files, depth_files = self._read_associations(assoc_file)
+            source = assoc_file
+        else:
+            rgb_ts, rgb_files = read_tum_list(root / "rgb.txt")
+            depth_ts, dfiles = read_tum_list(root / "depth.txt")
+            if len(rgb_ts) == 0 or len(depth_ts) == 0:
+                raise SlamInputError(f"{root}: rgb.txt has {len(rgb_ts)} and depth.txt {len(depth_ts)} entries")
+            order = np.argsort(depth_ts, kind="stable")
+            dts = depth_ts[order]
+            nd = order[_nearest(dts, rgb_ts)] if len(dts) > 1 else np.zeros(len(rgb_ts), dtype=np.int64)
+            keep = np.abs(depth_ts[nd] - rgb_ts) < max_dt
+            rgb_ts = rgb_ts[keep]
+            rgb_files = [f for f, k in zip(rgb_files, keep) if k]
+            depth_files = [dfiles[j] for j, k in zip(nd, keep) if k]
+            source = root / "depth.txt"
+
+        gt_path = next((root / n for n in ("groundtruth.txt", "pose.txt") if (root / n).exists()), None)
+        if gt_path is None:
+            raise SlamInputError(f"{root}: no groundtruth.txt (or pose.txt)")
+        gt_ts, gt_rows = _read_groundtruth(gt_path)
+        poses, has_gt = _gt_at(gt_ts, gt_rows, rgb_ts, max_dt, interpolate_gt)
+        if not has_gt.all():
+            log.info("%s: %d of %d frames have no ground truth within %.3f s and are dropped",
+                     root, int((~has_gt).sum()), len(has_gt), max_dt)
+        keep = has_gt.copy()
+        if not use_file and min_dt > 0:
+            last = -np.inf
+            for k in range(len(rgb_ts)):
+                if keep[k]:
+                    if rgb_ts[k] - last < min_dt:
+                        keep[k] = False
+                    else:
+                        last = rgb_ts[k]
+        if not keep.any():
+            raise SlamInputError(
+                f"{source}: empty association: no rgb frame has depth and ground truth within {max_dt} s "
+                f"(rgb {len(rgb_ts)} frames, ground truth {gt_ts[0]:.3f}..{gt_ts[-1]:.3f})"
+            )
+        idx = np.flatnonzero(keep)
+        poses = poses[idx]
+        if relative_to_first:
+            poses = np.linalg.inv(poses[0]) @ poses
+        self.gt_file = gt_path
+
+        if intrinsics is None:
+            key = _camera_for(root) if camera == "auto" else camera
+            if key not in TUM_CAMERAS:
+                raise SlamInputError(f"unknown TUM camera {camera!r}; expected auto or one of {list(TUM_CAMERAS)}")
+            if key == "default":
+                log.warning("%s: sensor not recognised from the folder name; using the ROS default camera", root)
+            intrinsics, cam_dist = TUM_CAMERAS[key]
+            if distortion is None:
+                distortion = cam_dist
+            self.camera = key
+        else:
+            self.camera = "custom"
+
+        self._setup(
+            root=root,
+            color_paths=[root / rgb_files[k] for k in idx],
+            depth_paths=[root / depth_files[k] for k in idx],
+            poses=poses,
+            timestamps=rgb_ts[idx],
+            intrinsics=intrinsics,
+            depth_scale=depth_scale,
+            distortion=distortion,
+            **options,
+        )
+
+    @staticmethod
+    def _read_associations(path: Path):
+        try:
+            text = path.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SlamInputError(f"{path}: cannot read ({exc})") from None
+        rgb_ts, rgb_files, depth_files = [], [], []
+        for lineno, line in enumerate(text.splitlines(), 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            parts = line.split()
+            if len(parts) < 4:
+                raise SlamInputError(f"{path}:{lineno}: expected 'rgb_ts rgb_file depth_ts depth_file'")
+            a_ts, a_file, b_ts, b_file = parts[:4]
+            if a_file.startswith("depth") and not b_file.startswith("depth"):
+                a_ts, a_file, b_ts, b_file = b_ts, b_file, a_ts, a_file  # written depth-first
+            try:
+                rgb_ts.append(float(a_ts))
+                float(b_ts)
+            except ValueError:
+                raise SlamInputError(f"{path}:{lineno}: bad timestamp") from None
+            rgb_files.append(a_file)
+            depth_files.append(b_file)
+        if not rgb_ts:
+            raise SlamInputError(f"{path}: empty association (no frame pairs)")
+        return np.asarray(rgb_ts), rgb_files, depth_files
