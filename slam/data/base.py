@@ -24,7 +24,7 @@ def read_color(path: Path) -> np.ndarray:
     import imageio.v3 as iio
 
     try:
-        img = iio.imread(path)
+        img = iio.imread(path, plugin="pillow")  # one decoder: no slow fall-through for corrupt files
     except FileNotFoundError:
         raise SlamInputError(f"{path}: colour image not found") from None
     except Exception as exc:  # imageio raises many types for corrupt files
@@ -41,7 +41,7 @@ def read_depth(path: Path, shape: tuple[int, int] | None = None) -> np.ndarray:
     import imageio.v3 as iio
 
     try:
-        img = iio.imread(path)
+        img = iio.imread(path, plugin="pillow")  # one decoder: no slow fall-through for corrupt files
     except FileNotFoundError:
         raise SlamInputError(f"{path}: depth image not found") from None
     except Exception as exc:
@@ -117,6 +117,7 @@ class RGBDDataset:
         stride: int = 1,
         max_frames: int | None = None,
         allow_invalid_poses: bool = False,
+        pose_source: Path | None = None,
     ) -> None:
         self.root = Path(root)
         if len(color_paths) != len(depth_paths):
@@ -128,7 +129,7 @@ class RGBDDataset:
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
         if len(poses) != len(color_paths):
             raise SlamInputError(f"{self.root}: {len(color_paths)} frames but {len(poses)} ground-truth poses")
-        check_rigid(poses, str(self.root), tol=1e-3, allow_nan=allow_invalid_poses)
+        check_rigid(poses, str(pose_source or self.root), tol=1e-3, allow_nan=allow_invalid_poses)
         if stride < 1:
             raise SlamInputError(f"{self.root}: stride must be >= 1, got {stride}")
         sel = np.arange(0, len(color_paths), stride)

@@ -103,8 +103,10 @@ class ReplicaDataset(RGBDDataset):
             intrinsics = REPLICA_INTRINSICS
         if depth_scale is None:
             depth_scale = float(cam.get("depth_scale", REPLICA_DEPTH_SCALE))
+        if len(colors) != len(depths):
+            raise SlamInputError(f"{results}: {len(colors)} colour images (frame*) but {len(depths)} depth images (depth*)")
         poses = read_replica_traj(root / "traj.txt")
-        if len(colors) != len(poses) and len(depths) == len(colors):
+        if len(poses) != len(colors):
             raise SlamInputError(f"{root / 'traj.txt'}: {len(poses)} poses but {len(colors)} frames in {results}")
         self.name = str(cam.get("name", root.name))
         mesh = Path(gt_mesh) if gt_mesh is not None else None
@@ -122,5 +124,6 @@ class ReplicaDataset(RGBDDataset):
             timestamps=[i / fps for i in range(len(colors))],
             intrinsics=intrinsics,
             depth_scale=depth_scale,
+            pose_source=root / "traj.txt",
             **options,
         )

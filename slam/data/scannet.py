@@ -81,26 +81,27 @@ class ScanNetDataset(RGBDDataset):
         mats = np.stack([_read_matrix(poses[i]) for i in ids]) if ids else np.zeros((0, 4, 4))
         bad = ~np.isfinite(mats).all(axis=(1, 2))
         mats[bad] = np.nan  # one marker for "no ground truth", whatever the file held
-        if intrinsics is None:
-            kfile = (root / "intrinsic" / "intrinsic_depth.txt")
-            if not kfile.exists():
-                kfile = Path(path) / "intrinsic" / "intrinsic_depth.txt"
-            if kfile.exists():
-                k = _read_matrix(kfile)
-                intrinsics = Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], 480, 640)
-            else:
-                intrinsics = SCANNET_INTRINSICS
+        depth_hw = None
         if ids:
             import imageio.v3 as iio
 
             try:
-                h, w = iio.improps(depths[ids[0]]).shape[:2]
+                depth_hw = tuple(iio.improps(depths[ids[0]]).shape[:2])
             except Exception as exc:
                 raise SlamInputError(f"{depths[ids[0]]}: cannot read depth image ({exc})") from None
-            if (h, w) != (intrinsics.height, intrinsics.width):
-                sx, sy = w / intrinsics.width, h / intrinsics.height
-                intrinsics = intrinsics.scaled(sx, sy)
-                intrinsics = Intrinsics(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, h, w)
+        if intrinsics is None:
+            kfile = root / "intrinsic" / "intrinsic_depth.txt"
+            if not kfile.exists():
+                kfile = Path(path) / "intrinsic" / "intrinsic_depth.txt"
+            if kfile.exists():
+                # SensReader's matrix is for the depth images as stored
+                k = _read_matrix(kfile)
+                h, w = depth_hw or (480, 640)
+                intrinsics = Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], h, w)
+            else:
+                intrinsics = SCANNET_INTRINSICS
+                if depth_hw is not None and depth_hw != (intrinsics.height, intrinsics.width):
+                    intrinsics = intrinsics.resized(*depth_hw)
         self._setup(
             root=root,
             color_paths=[colors[i] for i in ids],
