@@ -1,0 +1,97 @@
+"""The SLAM scene model: geometry + appearance feature fields (built by :func:`tdfields.build` from the config),
+the SDF and RGB decoders and the sharpness ``beta``. No factorisation maths lives here.
+
+Parameter names (used by :func:`tdfields.report` prefixes): ``fields.fields.geometry.*``,
+``fields.fields.appearance.*``, ``sdf_decoder.*``, ``rgb_decoder.*``, ``beta``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+import tdfields
+from slam.config import Config, FieldSpec
+
+_RANKED = ("cp", "six_axis", "vector_matrix")
+
+
+def field_spec(spec: FieldSpec, aabb: torch.Tensor) -> dict:
+    """tdfields multi-resolution spec for one quantity (one level per cell size, same kind/rank/channels)."""
+    levels = []
+    for cell in spec.cell_sizes:
+        level = {"kind": spec.kind, "aabb": aabb.tolist(), "cell_size": float(cell), "channels": int(spec.channels)}
+        if spec.kind in _RANKED:
+            level["rank"] = int(spec.rank)
+        if spec.init_std is not None:
+            level["init_std"] = float(spec.init_std)
+        levels.append(level)
+    return {"kind": "multires", "levels": levels}
+
+
+class SceneModel(nn.Module):
+    """Geometry/appearance fields + decoders.
+
+    Args:
+        cfg: resolved config (``geometry``, ``appearance``, ``scene``).
+        aabb: ``(3, 2)`` enlarged scene box in metres (see :func:`tdfields.enlarge_bounds`).
+
+    ``sdf_rgb(points [P, 3]) -> (sdf [P] in (-1, 1), rgb [P, 3] in (0, 1))``.
+    """
+
+    def __init__(self, cfg: Config, aabb: torch.Tensor):
+        super().__init__()
+        self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).clone())
+        self.fields = tdfields.Hybrid(
+            {
+                "geometry": tdfields.build(field_spec(cfg.geometry, self.aabb)),
+                "appearance": tdfields.build(field_spec(cfg.appearance, self.aabb)),
+            }
+        )
+        hidden = cfg.scene.decoder_hidden
+        self.sdf_decoder = tdfields.MLPDecoder(self.fields["geometry"].out_dim, 1, hidden=hidden,
+                                               output_activation="tanh")
+        self.rgb_decoder = tdfields.MLPDecoder(self.fields["appearance"].out_dim, 3, hidden=hidden,
+                                               output_activation="sigmoid")
+        beta = torch.tensor(float(cfg.scene.beta_init))
+        if cfg.scene.learnable_beta:
+            self.beta = nn.Parameter(beta)
+        else:
+            self.register_buffer("beta", beta)
+
+    def sdf(self, points: torch.Tensor) -> torch.Tensor:
+        """``[P, 3]`` world metres -> ``[P]`` normalised SDF."""
+        return self.sdf_decoder(self.fields["geometry"](points))[..., 0]
+
+    def rgb(self, points: torch.Tensor) -> torch.Tensor:
+        """``[P, 3]`` world metres -> ``[P, 3]`` RGB."""
+        return self.rgb_decoder(self.fields["appearance"](points))
+
+    def sdf_rgb(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.sdf(points), self.rgb(points)
+
+    def param_groups(self, cfg: Config, factor: float = 1.0) -> list[dict]:
+        """Adam groups with the mapping learning rates (decoders incl. beta, geometry, appearance)."""
+        m = cfg.mapping
+        dec = list(self.sdf_decoder.parameters()) + list(self.rgb_decoder.parameters())
+        if isinstance(self.beta, nn.Parameter):
+            dec.append(self.beta)
+        return [
+            {"params": dec, "lr": m.lr_decoders * factor},
+            {"params": list(self.fields["geometry"].parameters()), "lr": m.lr_geometry * factor},
+            {"params": list(self.fields["appearance"].parameters()), "lr": m.lr_appearance * factor},
+        ]
+
+
+def parameter_counts(model: SceneModel) -> dict[str, int]:
+    """``{"geometry", "appearance", "decoders", "total"}`` from :func:`tdfields.report` (never hand-written)."""
+    rep = tdfields.report(model)
+    geo = rep.parameters_under("fields.fields.geometry")
+    app = rep.parameters_under("fields.fields.appearance")
+    total = rep.total_parameters
+    return {"geometry": geo, "appearance": app, "decoders": total - geo - app, "total": total}
+
+
+def scene_aabb(bound, dividable: float) -> torch.Tensor:
+    """ESLAM's enlarged bound (float32)."""
+    return tdfields.enlarge_bounds(bound, multiple=dividable)
