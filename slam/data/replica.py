@@ -105,6 +105,10 @@ class ReplicaDataset(RGBDDataset):
             depth_scale = float(cam.get("depth_scale", REPLICA_DEPTH_SCALE))
         if len(colors) != len(depths):
             raise SlamInputError(f"{results}: {len(colors)} colour images (frame*) but {len(depths)} depth images (depth*)")
+        for c, d in zip(colors, depths):
+            if _frame_number(c) != _frame_number(d):
+                # equal counts with different numbering would pair the wrong images silently
+                raise SlamInputError(f"{results}: {c.name} is paired with {d.name}; frame numbers must match")
         poses = read_replica_traj(root / "traj.txt")
         if len(poses) != len(colors):
             raise SlamInputError(f"{root / 'traj.txt'}: {len(poses)} poses but {len(colors)} frames in {results}")

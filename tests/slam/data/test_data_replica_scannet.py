@@ -80,6 +80,10 @@ def test_replica_bad_inputs(tmp_path):
     np.savetxt(root / "traj.txt", bad)
     with pytest.raises(SlamInputError, match="traj.txt: pose 1 contains NaN"):
         ReplicaDataset(root, intrinsics=k)
+    root = _write_replica(tmp_path / "d")
+    (root / "results" / "depth000001.png").rename(root / "results" / "depth000007.png")
+    with pytest.raises(SlamInputError, match="frame000001.jpg is paired with depth000002.png"):
+        ReplicaDataset(root, intrinsics=k)
     root = _write_replica(tmp_path / "c")
     (root / "results" / "frame000001.jpg").write_bytes(b"not an image")
     with pytest.raises(SlamInputError, match="frame000001.jpg: cannot read colour image"):
