@@ -1,0 +1,41 @@
+"""Provenance stamp for benchmark outputs: date, library version, CPU, threads, torch."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import platform
+
+import torch
+
+import tdfields
+
+
+def cpu_name() -> str:
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def stamp(device: str = "cpu") -> dict:
+    info = {
+        "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "tdfields_version": tdfields.__version__,
+        "torch_version": torch.__version__,
+        "python": platform.python_version(),
+        "cpu": cpu_name(),
+        "torch_threads": torch.get_num_threads(),
+        "device": device,
+    }
+    if device.startswith("cuda") and torch.cuda.is_available():
+        info["gpu"] = torch.cuda.get_device_name()
+    return info
+
+
+def stamp_line(info: dict) -> str:
+    dev = info.get("gpu", info["device"])
+    return (f"Measured {info['date']} with tdfields {info['tdfields_version']}, torch {info['torch_version']}, "
+            f"on {info['cpu']} ({info['torch_threads']} threads), device {dev}.")
