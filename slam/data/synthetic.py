@@ -50,7 +50,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: bump when the output of :func:`generate` changes for the same config, so caches regenerate
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 #: the Replica depth PNG scale: metres = value / 6553.5 (65535 <-> 10 m, 0.15 mm steps)
 DEPTH_SCALE = 6553.5
 
@@ -73,8 +73,9 @@ class SynthConfig:
         color_noise_sigma: std of i.i.d. Gaussian colour noise (colour in [0, 1]).
         loop_frames: frames per full loop around the room (sets the speed: ~1.4 cm, ~0.9 deg per frame).
         path_radius: radius (m) of the camera loop around the room centre.
-        supersample: colour is the mean over ``supersample^2`` rays per pixel (anti-aliasing); depth uses the
-            centre ray.
+        supersample: colour anti-aliasing: pixels at occluding edges, creases and curved surfaces average
+            ``supersample^2`` rays (flat interiors take one, the texture being smooth at pixel scale); depth
+            always uses the centre ray.
     """
 
     seed: int = 0
@@ -366,18 +367,40 @@ def render_frame(scene: SynthScene, pose: np.ndarray, intr: Intrinsics, supersam
     depth = t.reshape(h, w)
     cos = np.abs((n * centre).sum(1)) / np.linalg.norm(centre, axis=1)
     if supersample > 1:
+        # Anti-alias where it matters: pixels whose 4 neighbours lie on the same plane and material get
+        # one sample (the texture is smooth at pixel scale), the rest (occluding edges, creases, curved
+        # surfaces; ~20 % of pixels) the mean of supersample^2 rays. 3x cheaper than supersampling all.
         s = supersample
-        g = (np.arange(s) + 0.5) / s - 0.5
-        offs = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-        dirs = _pixel_dirs(intr, pose, offs).reshape(-1, 3)
-        ts, ns, ms = _cast(scene, o, dirs)
-        pts = o + ts[:, None] * dirs
-        col = albedo(scene, pts, ms) * _shade(scene, pts, ns)
-        col = col.reshape(len(offs), h * w, 3).mean(0)
+        p_c = o + t[:, None] * centre
+        col = np.empty((h * w, 3))
+        flat = _planar_interior(p_c.reshape(h, w, 3), n.reshape(h, w, 3), mat.reshape(h, w)).reshape(-1)
+        fi = np.flatnonzero(flat)
+        col[fi] = albedo(scene, p_c[fi], mat[fi]) * _shade(scene, p_c[fi], n[fi])
+        ri = np.flatnonzero(~flat)
+        if len(ri):
+            g = (np.arange(s) + 0.5) / s - 0.5
+            offs = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+            sub = _pixel_dirs(intr, pose, offs)[:, ri].reshape(-1, 3)
+            tr, nr, mr = _cast(scene, o, sub)
+            pts = o + tr[:, None] * sub
+            cs = albedo(scene, pts, mr) * _shade(scene, pts, nr)
+            col[ri] = cs.reshape(len(offs), len(ri), 3).mean(0)
     else:
         pts = o + t[:, None] * centre
         col = albedo(scene, pts, mat) * _shade(scene, pts, n)
     return np.clip(col, 0, 1).reshape(h, w, 3), depth, cos.reshape(h, w), mat.reshape(h, w)
+
+
+def _planar_interior(p: np.ndarray, n: np.ndarray, mat: np.ndarray) -> np.ndarray:
+    """``[H, W]`` True where a pixel and its 4 neighbours hit the same material on the same plane."""
+    off = (p * n).sum(-1)
+    ok = np.zeros(mat.shape, bool)
+    ok[1:-1, 1:-1] = True
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        sl = (slice(1 + dy, mat.shape[0] - 1 + dy), slice(1 + dx, mat.shape[1] - 1 + dx))
+        c = (slice(1, -1), slice(1, -1))
+        ok[c] &= (mat[sl] == mat[c]) & (np.abs(n[sl] - n[c]).max(-1) < 1e-5) & (np.abs(off[sl] - off[c]) < 1e-4)
+    return ok
 
 
 def _sensor_depth(depth: np.ndarray, cos: np.ndarray, rng: np.random.Generator) -> np.ndarray:
