@@ -45,6 +45,7 @@ __all__ = [
     "scene_mesh",
     "GENERATOR_VERSION",
     "DEPTH_SCALE",
+    "EVAL_CAMERA_BOX",
 ]
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,9 @@ DEPTH_SCALE = 6553.5
 
 ROOM_MIN = np.array([-2.0, -2.0, 0.0])
 ROOM_MAX = np.array([2.0, 2.0, 2.5])
+#: ``camera_box`` for :func:`slam.eval.depth_l1` on this room: free space around the camera loop (the
+#: reference's Replica rule would put some virtual cameras above the ceiling here)
+EVAL_CAMERA_BOX = ((-1.2, -1.2, 0.9), (1.2, 1.2, 2.0))
 
 
 @dataclass
