@@ -568,17 +568,16 @@ def default_sequence(cache_dir=None, cfg: SynthConfig | None = None) -> Path:
     name = "synthetic_default" if cfg == SynthConfig() else "synthetic_" + _config_tag(cfg)
     target = root / name
     want = _config_record(cfg)
-    rec = target / "synth.json"
-    if rec.exists():
-        try:
-            if json.loads(rec.read_text()) == want and (target / "mesh.ply").exists():
-                return target
-        except (OSError, ValueError):
-            pass
+    if _holds(target, want):
+        return target
     root.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=root))
     try:
         generate(tmp, cfg)
+        if _holds(target, want):
+            # another process finished first: keep its copy, which readers may already hold open
+            shutil.rmtree(tmp, ignore_errors=True)
+            return target
         if target.exists():
             old = root / f".{name}.old.{os.getpid()}"
             try:
@@ -589,12 +588,20 @@ def default_sequence(cache_dir=None, cfg: SynthConfig | None = None) -> Path:
         try:
             tmp.rename(target)
         except OSError:
-            # another process won the race; theirs is equivalent
             shutil.rmtree(tmp, ignore_errors=True)
+            if not _holds(target, want):
+                raise SlamInputError(f"{target}: cannot write the synthetic sequence into the cache") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return target
+
+
+def _holds(folder: Path, record: dict) -> bool:
+    try:
+        return json.loads((folder / "synth.json").read_text()) == record and (folder / "mesh.ply").exists()
+    except (OSError, ValueError):
+        return False
 
 
 def _config_tag(cfg: SynthConfig) -> str:
