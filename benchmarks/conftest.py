@@ -19,6 +19,9 @@ CONFIGS = {
     "geometry/lrslam-cp": {"kind": "cp", "cell_size": [0.24, 0.06], "channels": 32, "rank": 2},
     "appearance/eslam-triplane": {"kind": "triplane", "cell_size": [0.24, 0.03], "channels": 32},
     "appearance/lrslam-six_axis": {"kind": "six_axis", "cell_size": [0.24, 0.03], "channels": 32, "rank": 16},
+    # the same field on its O(n)-memory factor path, to show what plane composition saves
+    "appearance/lrslam-six_axis-factors": {"kind": "six_axis", "cell_size": [0.24, 0.03], "channels": 32, "rank": 16,
+                                           "strategy": "factors"},
 }
 
 

@@ -1,11 +1,11 @@
 """How each decomposition's size grows with the scene: parameters and measured peak training memory.
 
 Sweeps the side length L of a cubic scene over (at least) a decade at a fixed cell size, so the samples per
-axis n grow linearly with L. For every kind and L, a fresh worker process builds the field, runs a few
-Adam training steps on a tracking-sized batch (40k points) and reports its peak memory: on the CPU the rise
-of the process's peak resident set (``ru_maxrss``) over a baseline taken just before the field is built, on
-CUDA ``torch.cuda.max_memory_allocated``. Growth exponents are least-squares slopes in log-log space, fitted
-on the largest sizes (where the field, not the fixed per-point intermediates, dominates).
+axis n grow linearly with L. For every kind and L it builds the field, runs a few Adam
+training steps on a tracking-sized batch (40k points) and records torch's peak allocation (CPU: from the
+profiler's allocation events; CUDA: ``max_memory_allocated``). The fixed per-point cost is measured by the same
+steps on a 2x2x2 grid and subtracted, leaving the memory that grows with the scene. Growth exponents are
+least-squares slopes in log-log space, fitted on the largest sizes.
 
 Writes ``memory_growth.csv``, ``memory_growth.json`` and ``memory_growth.png`` to ``--out`` and, with
 ``--docs``, refreshes the table in docs/benchmarks.md between its markers.
@@ -19,8 +19,6 @@ import argparse
 import csv
 import json
 import math
-import resource
-import subprocess
 import sys
 from pathlib import Path
 
@@ -36,50 +34,66 @@ KINDS = {  # kind -> (rank, colour, label)
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def worker(kind: str, side: float, cell: float, channels: int, points: int, steps: int, device: str,
-           strategy: str | None) -> dict:
+def peak_bytes(fn, device: str) -> int:
+    """Peak bytes allocated by torch while ``fn`` runs.
+
+    CUDA: ``max_memory_allocated`` above the level before. CPU: the running sum of the profiler's allocation
+    and free events (``profile_memory=True``), which is exact for torch tensors and, unlike the process's
+    resident set, free of allocator and library-loading noise.
+    """
+    import torch
+
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+        torch.cuda.reset_peak_memory_stats()
+        base = torch.cuda.memory_allocated()
+        fn()
+        torch.cuda.synchronize()
+        return torch.cuda.max_memory_allocated() - base
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU], profile_memory=True) as prof:
+        fn()
+    events = sorted((e for e in prof.profiler.kineto_results.events() if e.name() == "[memory]"),
+                    key=lambda e: e.start_ns())
+    current = peak = 0
+    for e in events:
+        current += e.nbytes()
+        peak = max(peak, current)
+    return peak
+
+
+def measure(kind: str, side: float, cell: float | None, channels: int, x, target, steps: int, device: str,
+            strategy: str | None) -> dict:
+    """Build one field, train it ``steps`` Adam steps on ``x``; ``cell=None`` builds a 2x2x2 grid."""
     import torch
 
     import tdfields
 
-    torch.manual_seed(0)
-    dev = torch.device(device)
-    g = torch.Generator().manual_seed(0)
-    x = (torch.rand(points, 3, generator=g) * side).to(dev)
-    target = torch.randn(points, channels, generator=g).to(dev)
     rank, _, _ = KINDS[kind]
-    spec = {"kind": kind, "aabb": [[0, side]] * 3, "cell_size": cell, "channels": channels}
+    spec = {"kind": kind, "aabb": [[0, side]] * 3, "channels": channels}
+    spec.update({"cell_size": cell} if cell else {"grid_shape": [2, 2, 2]})
     if rank:
         spec["rank"] = rank
     if strategy:
         spec["strategy"] = strategy
+    info = {}
 
-    def train(field, n_steps):
+    def train():
+        torch.manual_seed(0)
+        field = tdfields.build(spec).to(device)
         opt = torch.optim.Adam(field.parameters(), lr=1e-3)
-        for _ in range(n_steps):
+        for _ in range(steps):
             opt.zero_grad(set_to_none=False)
             (field(x) - target).square().mean().backward()
             opt.step()
+        info.update(n=field.grid_shape[0], parameters=field.num_parameters(), bytes=field.memory_bytes(),
+                    complexity=field.complexity)
 
-    # warm-up on a tiny grid: the first ops load kernels and grow allocator arenas (~100 MiB of RSS on the CPU)
-    # that are not the field's; the baseline is taken after them
-    train(tdfields.build({**spec, "cell_size": side / 4}).to(dev), 2)
-    if dev.type == "cuda":
-        torch.cuda.synchronize()
-        torch.cuda.reset_peak_memory_stats()
-        base = torch.cuda.memory_allocated()
-    else:
-        base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    field = tdfields.build(spec).to(dev)
-    train(field, steps)
-    if dev.type == "cuda":
-        torch.cuda.synchronize()
-        peak = torch.cuda.max_memory_allocated() - base
-    else:
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base
+    peak = peak_bytes(train, device)
     return {"kind": kind if not strategy else f"{kind}[{strategy}]", "side_m": side, "cell_m": cell,
-            "n_per_axis": field.grid_shape[0], "parameters": field.num_parameters(),
-            "parameter_bytes": field.memory_bytes(), "peak_training_bytes": int(peak), "complexity": field.complexity}
+            "n_per_axis": info["n"], "parameters": info["parameters"], "parameter_bytes": info["bytes"],
+            "peak_training_bytes": int(peak), "complexity": info["complexity"]}
 
 
 def fit_exponent(sides, values) -> float:
@@ -87,27 +101,33 @@ def fit_exponent(sides, values) -> float:
 
 
 def run_sweep(args) -> list[dict]:
+    import torch
+
     sides = np.geomspace(args.min_side, args.max_side, args.sizes).round(3).tolist()
+    g = torch.Generator().manual_seed(0)
+    unit = torch.rand(args.points, 3, generator=g)
+    target = torch.randn(args.points, args.channels, generator=g).to(args.device)
     rows = []
     configs = [(k, None) for k in args.kinds]
     if "six_axis" in args.kinds:
         configs.append(("six_axis", "factors"))  # the strictly O(n)-memory evaluation path
     for kind, strategy in configs:
+        # the same batch through a 2x2x2 grid: the fixed per-point cost that does not grow with the scene
+        batch = measure(kind, 1.0, None, args.channels, unit.to(args.device), target, args.steps, args.device,
+                        strategy)["peak_training_bytes"]
         for side in sides:
             n = math.floor(side / args.cell)
             if kind == "dense_grid" and n ** 3 * args.channels * 4 * 4 > args.dense_limit_gib * 2**30:
                 print(f"  skip dense_grid L={side} m: {n}^3 grid over the {args.dense_limit_gib} GiB limit")
                 continue
-            cmd = [sys.executable, __file__, "--worker", kind, str(side), "--cell", str(args.cell), "--channels",
-                   str(args.channels), "--points", str(args.points), "--steps", str(args.steps), "--device",
-                   args.device] + (["--strategy", strategy] if strategy else [])
-            out = subprocess.run(cmd, capture_output=True, text=True)
-            if out.returncode != 0:
-                raise RuntimeError(f"worker {kind} L={side} failed:\n{out.stderr[-2000:]}")
-            row = json.loads(out.stdout.strip().splitlines()[-1])
+            row = measure(kind, side, args.cell, args.channels, (unit * side).to(args.device), target, args.steps,
+                          args.device, strategy)
+            row["batch_bytes"] = batch
+            row["growth_bytes"] = row["peak_training_bytes"] - batch
             rows.append(row)
             print(f"  {row['kind']:<20} L={side:6.2f} m  n={row['n_per_axis']:4d}  params={row['parameters']:>12,}  "
-                  f"peak={row['peak_training_bytes'] / 2**20:9.1f} MiB", flush=True)
+                  f"peak={row['peak_training_bytes'] / 2**20:9.2f} MiB  above batch="
+                  f"{row['growth_bytes'] / 2**20:9.2f} MiB", flush=True)
     return rows
 
 
@@ -117,7 +137,8 @@ def exponents(rows, fit_last: int) -> dict:
         rs = sorted((r for r in rows if r["kind"] == kind), key=lambda r: r["side_m"])[-fit_last:]
         s = [r["side_m"] for r in rs]
         out[kind] = {"parameters": fit_exponent(s, [r["parameters"] for r in rs]),
-                     "peak_training_memory": fit_exponent(s, [max(r["peak_training_bytes"], 1) for r in rs]),
+                     "peak_training_memory": fit_exponent(s, [r["peak_training_bytes"] for r in rs]),
+                     "memory_above_batch": fit_exponent(s, [max(r["growth_bytes"], 1) for r in rs]),
                      "complexity": rs[0]["complexity"]}
     return out
 
@@ -140,10 +161,11 @@ def plot(rows, exps, path: Path, stamp_text: str):
         if "[" not in kind:
             axes[0].loglog(s, [r["parameters"] for r in rs], style, marker="o", color=colour,
                            label=f"{label}: slope {e['parameters']:.2f}")
-        axes[1].loglog(s, [r["peak_training_bytes"] / 2**20 for r in rs], style, marker="o", color=colour,
-                       label=f"{label}: slope {e['peak_training_memory']:.2f}")
+        axes[1].loglog(s, [max(r["growth_bytes"], 1) / 2**20 for r in rs], style, marker="o", color=colour,
+                       label=f"{label}: slope {e['memory_above_batch']:.2f}")
     axes[0].set(title="parameters", xlabel="scene side L (m)", ylabel="parameters")
-    axes[1].set(title="peak training memory (Adam, 40k-point batch)", xlabel="scene side L (m)", ylabel="MiB")
+    axes[1].set(title="peak training memory above the 40k-point batch cost (Adam)", xlabel="scene side L (m)",
+                ylabel="MiB")
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
@@ -153,20 +175,19 @@ def plot(rows, exps, path: Path, stamp_text: str):
 
 
 def markdown(rows, exps, stamp_text: str) -> str:
-    lines = [stamp_text, "", "| kind | complexity | params slope | memory slope | params at largest L | peak MiB at largest L |",
-             "|---|---|---|---|---|---|"]
+    lines = [stamp_text, "", "| kind | complexity | parameter slope | memory slope (above batch) | "
+             "parameters at largest L | peak MiB at largest L | of which the 40k-point batch |",
+             "|---|---|---|---|---|---|---|"]
     for kind, e in exps.items():
         last = max((r for r in rows if r["kind"] == kind), key=lambda r: r["side_m"])
         lines.append(f"| {kind} (L={last['side_m']:g} m) | {e['complexity']} | {e['parameters']:.2f} | "
-                     f"{e['peak_training_memory']:.2f} | {last['parameters']:,} | "
-                     f"{last['peak_training_bytes'] / 2**20:.1f} |")
+                     f"{e['memory_above_batch']:.2f} | {last['parameters']:,} | "
+                     f"{last['peak_training_bytes'] / 2**20:.1f} | {last['batch_bytes'] / 2**20:.1f} |")
     return "\n".join(lines)
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--worker", nargs=2, metavar=("KIND", "SIDE"), help=argparse.SUPPRESS)
-    p.add_argument("--strategy", help=argparse.SUPPRESS)
     p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS))
     p.add_argument("--min-side", type=float, default=1.0, help="smallest scene side in metres (default 1)")
     p.add_argument("--max-side", type=float, default=20.0, help="largest scene side in metres (default 20)")
@@ -181,10 +202,6 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     p.add_argument("--docs", action="store_true", help="refresh docs/benchmarks.md and docs/images/memory_growth.png")
     args = p.parse_args(argv)
-    if args.worker:
-        print(json.dumps(worker(args.worker[0], float(args.worker[1]), args.cell, args.channels, args.points,
-                                args.steps, args.device, args.strategy)))
-        return 0
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from _stamp import stamp, stamp_line
 
@@ -197,7 +214,7 @@ def main(argv=None) -> int:
         w.writeheader()
         w.writerows(rows)
     (args.out / "memory_growth.json").write_text(json.dumps({"stamp": info, "settings": {
-        k: v for k, v in vars(args).items() if k not in {"worker", "out", "docs", "strategy"}},
+        k: v for k, v in vars(args).items() if k not in {"out", "docs"}},
         "exponents": exps, "rows": rows}, indent=2))
     text = stamp_line(info)
     plot(rows, exps, args.out / "memory_growth.png", text)
