@@ -37,7 +37,20 @@ def to_grid_coords(points: torch.Tensor, aabb: torch.Tensor, shape: Sequence[int
 
 
 def interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
-    """Multilinear interpolation of a channels-last grid at continuous indices.
+    """Multilinear interpolation of a channels-last grid at continuous indices (dispatching).
+
+    Uses the fused kernel of :mod:`tdfields.kernels` where it applies (CPU tensors with numba, backend
+    ``"auto"`` or ``"numba"``), else :func:`interpolate_reference`. Same arguments and result.
+    """
+    from tdfields import kernels
+
+    if kernels.use_fused(grid, coords):
+        return kernels.fused_interpolate(grid, coords)
+    return interpolate_reference(grid, coords)
+
+
+def interpolate_reference(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+    """Multilinear interpolation of a channels-last grid at continuous indices: the pure-PyTorch reference.
 
     Args:
         grid: ``[s_0, ..., s_{d-1}, F]`` values at integer sample positions (each ``s_i >= 2``).

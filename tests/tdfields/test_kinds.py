@@ -8,6 +8,7 @@ import torch.nn.functional as F
 from einops import rearrange
 
 import tdfields
+from tdfields import kernels
 
 from .conftest import BOX, SHAPE, make
 
@@ -68,13 +69,15 @@ def dense_volume(f):
     return vol.permute(3, 2, 1, 0).contiguous()
 
 
-def test_matches_dense_trilinear_reference(kind):
+@pytest.mark.parametrize("backend", ["torch", "auto"])
+def test_matches_dense_trilinear_reference(kind, backend):
     """Products of linear interpolants equal trilinear interpolation of the dense product volume."""
     f = make(kind).double()
     box = f.aabb  # the float32-rounded box the field stores, as float64
     g = torch.Generator().manual_seed(1)
     pts = box[:, 0] + torch.rand(500, 3, generator=g, dtype=torch.float64) * (box[:, 1] - box[:, 0])
-    ours = f(pts)
+    with kernels.use_backend(backend):
+        ours = f(pts)
     grid = (2 * (pts - box[:, 0]) / (box[:, 1] - box[:, 0]) - 1).view(1, 1, 1, -1, 3)
     ref = F.grid_sample(dense_volume(f)[None], grid, mode="bilinear", align_corners=True).view(f.channels, -1).T
     torch.testing.assert_close(ours, ref, rtol=1e-10, atol=1e-12)
@@ -97,7 +100,8 @@ def test_leading_dims_kept(kind):
     assert f(torch.rand(3)).shape == (f.out_dim,)
 
 
-def test_gradcheck_points_and_parameters(kind):
+@pytest.mark.parametrize("backend", ["torch", "auto"])
+def test_gradcheck_points_and_parameters(kind, backend):
     f = make(kind, channels=2, shape=(4, 3, 5)).double()
     g = torch.Generator().manual_seed(2)
     box = f.aabb
@@ -109,7 +113,8 @@ def test_gradcheck_points_and_parameters(kind):
     def fn(p, *factors):
         return torch.func.functional_call(f, {f"factors.{n}": t for n, t in zip(f.factors.keys(), factors)}, (p,))
 
-    assert torch.autograd.gradcheck(fn, (pts, *[p.detach().clone().requires_grad_(True) for p in params]))
+    with kernels.use_backend(backend):
+        assert torch.autograd.gradcheck(fn, (pts, *[p.detach().clone().requires_grad_(True) for p in params]))
 
 
 def test_second_derivatives_exist(kind):
@@ -117,8 +122,9 @@ def test_second_derivatives_exist(kind):
     f = make(kind, channels=1).double()
     pts = (f.aabb[:, 0] + 0.37 * (f.aabb[:, 1] - f.aabb[:, 0])).repeat(3, 1) + torch.rand(3, 3, dtype=torch.float64) * 0.05
     pts.requires_grad_(True)
-    (grad,) = torch.autograd.grad(f(pts).sum(), pts, create_graph=True)
-    grad.norm(dim=-1).sum().backward()
+    with kernels.use_backend("torch"):  # the fused kernels are first-order only
+        (grad,) = torch.autograd.grad(f(pts).sum(), pts, create_graph=True)
+        grad.norm(dim=-1).sum().backward()
     assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in f.parameters())
 
 
