@@ -160,6 +160,7 @@ class RGBDDataset:
                 raise SlamInputError(f"{self.root}: {exc}") from None
         self.intrinsics = intr
         self._grid = undistort_grid(intrinsics, self.distortion) if self.distortion and any(self.distortion) else None
+        log.debug("opened %r (raw camera %s, distortion %s)", self, intrinsics, self.distortion)
 
     # --- sequence protocol -------------------------------------------------------------------------------
     def __len__(self) -> int:

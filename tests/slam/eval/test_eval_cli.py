@@ -45,7 +45,8 @@ def test_eval_mesh_json(tmp_path):
     rec.export(tmp_path / "rec.ply")
     out = tmp_path / "m.json"
     rc = main(["eval", "--mesh", str(tmp_path / "rec.ply"), "--gt-mesh", str(tmp_path / "gt.ply"),
-               "--samples", "20000", "--depth-views", "2", "--json", str(out)])
+               "--samples", "20000", "--depth-views", "2", "--depth-box", "-0.1", "-0.1", "-0.1", "0.1", "0.1", "0.1",
+               "--json", str(out)])
     assert rc == 0
     data = json.loads(out.read_text())
     assert set(data) == {"accuracy_m", "completion_m", "completion_ratio", "depth_l1_m"}
