@@ -116,3 +116,17 @@ def test_default_generation_is_fast(tmp_path, monkeypatch):
     assert elapsed < 45.0, f"default synthetic sequence took {elapsed:.1f} s"
     ds = ReplicaDataset(path)
     assert len(ds) == SynthConfig().frames and ds.intrinsics.width == SynthConfig().width
+
+
+def test_gt_mesh_has_no_hidden_surfaces(small_seq):
+    import trimesh
+
+    mesh = trimesh.load(small_seq / "mesh.ply", process=False)
+    pts, _ = trimesh.sample.sample_surface(mesh, 100_000, seed=0)
+    under_cabinet = (pts[:, 2] < 1e-3) & (pts[:, 0] > 1.5) & (pts[:, 1] > -0.85) & (pts[:, 1] < 0.25)
+    behind_shelf = (pts[:, 0] < -2 + 1e-3) & (pts[:, 1] > -1.25) & (pts[:, 1] < 0.05) & (pts[:, 2] > 0.05) & (pts[:, 2] < 1.85)
+    box_bottoms = (pts[:, 2] < 1e-3) & (np.abs(pts[:, 0]) < 0.42) & (np.abs(pts[:, 1]) < 0.27) & (
+        (np.abs(np.abs(pts[:, 0]) - 0.39) < 0.02) & (np.abs(np.abs(pts[:, 1]) - 0.24) < 0.02))  # under table legs
+    assert not under_cabinet.any() and not behind_shelf.any() and not box_bottoms.any()
+    # but the visible floor next to the cabinet is there
+    assert ((pts[:, 2] < 1e-3) & (pts[:, 0] > 1.0) & (pts[:, 0] < 1.4)).sum() > 100
