@@ -128,6 +128,9 @@ class MeshingConfig:
     hull_points_per_frame: int = 2000
     cull: bool = True
     cull_depth_test: bool = True
+    eval_samples: int = 200000
+    eval_icp: bool = True
+    depth_l1_views: int = 1000
 
 
 @dataclass

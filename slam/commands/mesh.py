@@ -1,0 +1,82 @@
+"""``lrslam mesh CHECKPOINT``: re-extract a mesh from a run's checkpoint at a chosen resolution."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from slam.errors import SlamInputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "mesh",
+        help="re-extract a mesh from a run checkpoint",
+        description=(
+            "Rebuild the scene from a checkpoint written by `lrslam run` and run marching cubes over its "
+            "marching-cubes bound at --resolution. The visibility hull uses the keyframe poses and depth "
+            "from the dataset when it can still be read; otherwise the camera centres and the box only."
+        ),
+    )
+    p.add_argument("checkpoint", help="checkpoint.pt from `lrslam run`")
+    p.add_argument("--resolution", type=float, default=None, help="grid spacing in metres (default: the run's)")
+    p.add_argument("--out", default=None, help="output .ply (default: mesh_<res>.ply next to the checkpoint)")
+    p.add_argument("--no-cull", action="store_true", help="skip culling against the frames' view frusta")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    import numpy as np
+    import torch
+
+    import tdfields
+    from slam.config import _build, Config
+    from slam.mesher import Hull, extract_mesh, hull_points
+    from slam.scene import SceneModel
+
+    path = Path(args.checkpoint)
+    try:
+        ckpt = tdfields.load(path)
+    except (FileNotFoundError, ValueError) as exc:
+        raise SlamInputError(str(exc)) from None
+    if not ckpt.get("config") or "poses" not in ckpt.get("extra", {}):
+        raise SlamInputError(f"{path}: not an lrslam run checkpoint (no config or poses)")
+    cfg = _build(Config, ckpt["config"])
+    extra = ckpt["extra"]
+    scene = SceneModel(cfg, torch.tensor(extra["aabb"]))
+    scene.load_state_dict(ckpt["state_dict"])
+    scene.eval()
+    res = args.resolution or cfg.meshing.resolution
+    if not res > 0:
+        raise SlamInputError(f"--resolution must be positive, got {res}")
+    poses = extra["poses"]
+    from slam.data.types import Intrinsics
+
+    intr = Intrinsics(**extra["intrinsics"])
+    ds = None
+    try:
+        from slam.system import load_data
+
+        ds = load_data(cfg)
+    except SlamInputError:
+        pass
+    kf_idx = extra.get("keyframe_indices", [])
+    kf_poses = extra.get("keyframe_poses", torch.zeros(0, 4, 4))
+    if ds is not None and kf_idx:
+        depths = [torch.as_tensor(ds[i].depth) for i in kf_idx]
+        pts = hull_points(depths, list(kf_poses), intr, cfg.meshing.hull_points_per_frame,
+                          torch.Generator().manual_seed(cfg.seed))
+    else:
+        pts = poses[:, :3, 3].double().numpy()
+    hull = Hull(pts, cfg.meshing.hull_scale) if len(pts) >= 4 and ds is not None else None
+    mesh = extract_mesh(scene, extra["marching_cubes_bound"], res, cfg.meshing.batch, hull)
+    if not args.no_cull and len(mesh.faces):
+        from slam.eval import cull_mesh
+
+        depths = None
+        if ds is not None and cfg.meshing.cull_depth_test:
+            depths = [np.asarray(ds[i].depth, dtype=np.float32) for i in extra["frame_indices"]]
+        mesh = cull_mesh(mesh, poses.numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
+    out = Path(args.out) if args.out else path.parent / f"mesh_{res:g}.ply"
+    mesh.export(out)
+    print(f"{len(mesh.vertices)} vertices, {len(mesh.faces)} faces -> {out}")
+    return 0

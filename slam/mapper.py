@@ -1,0 +1,146 @@
+"""Mapping (eslam-pipeline.md §5): optimise the scene (and, with BA, the window poses) on a keyframe window.
+
+The optimiser is rebuilt at every call (Adam, default betas): decoders + beta, geometry and appearance fields
+at their own learning rates (x ``lr_first_factor`` on the first frame, which runs ``iters_first`` iterations).
+Each iteration draws ``pixels // n_frames`` pixels from every window frame over the full image. The SDF and
+depth terms use rays with depth; the colour term every ray whose measured surface is inside the box.
+Joint BA (after more than ``ba_min_keyframes`` keyframes) optimises one 7-d pose per window frame except the
+oldest (the gauge) and frame 0 (pinned to ground truth).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from slam.config import Config
+from slam.keyframes import KeyframeStore, keyframe_matrices, overlapping_keyframes, select_window
+from slam.losses import LossWeights, total_loss
+from slam.pose import pose_to_matrix, standardize_quaternion
+from slam.rendering import pixel_directions, ray_box_exit, render_rays, sample_pixels
+
+
+@dataclass
+class MapResult:
+    pose: torch.Tensor  # [7] refined current pose
+    window: list[int]  # frame indices used
+    loss: float
+    ok: bool
+
+
+def _normalised(p: torch.Tensor) -> torch.Tensor:
+    q = p[..., :4] / p[..., :4].norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    return torch.cat((standardize_quaternion(q), p[..., 4:]), -1)
+
+
+def map_frame(
+    scene,
+    index: int,
+    color: torch.Tensor,
+    depth: torch.Tensor,
+    pose: torch.Tensor,
+    intrinsics,
+    keyframes: KeyframeStore,
+    cfg: Config,
+    generator: torch.Generator,
+    first: bool = False,
+) -> MapResult:
+    """One mapping call for frame ``index``.
+
+    Args:
+        scene: :class:`slam.scene.SceneModel` (optimised in place).
+        color, depth: current frame ``[H, W, 3]`` / ``[H, W]`` on the scene's device.
+        pose: ``[7]`` current estimated pose.
+        keyframes: the store (refined poses written back when BA runs).
+        first: the first-frame warm-up (``iters_first``, learning rates x ``lr_first_factor``).
+
+    Returns:
+        :class:`MapResult` with the (possibly BA-refined) current pose.
+    """
+    mc = cfg.mapping
+    device = depth.device
+    H, W = depth.shape
+    T = cfg.scene.truncation
+    weights = LossWeights(**vars(mc.weights))
+
+    # ---- window
+    window: list[int] = []
+    if not first and len(keyframes) > 0:
+        if mc.keyframe_selection == "overlap":
+            with torch.no_grad():
+                overlap = overlapping_keyframes(
+                    depth.cpu(), pose_to_matrix(pose.cpu()), keyframe_matrices(keyframes.poses()),
+                    intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.height,
+                    intrinsics.width, mc.overlap_pixels, mc.overlap_samples, 20, generator)
+        else:
+            overlap = torch.ones(len(keyframes), dtype=torch.bool)
+        window = select_window(len(keyframes), overlap, mc.window_size, generator)
+
+    colors = [keyframes.frames[i].color for i in window] + [color]
+    depths = [keyframes.frames[i].depth for i in window] + [depth]
+    frame_ids = [keyframes.frames[i].index for i in window] + [index]
+    poses0 = torch.stack([keyframes.frames[i].pose for i in window] + [pose.cpu()]).to(device)
+    colors = torch.stack([c.to(device) for c in colors])  # [F, H, W, 3]
+    depths = torch.stack([d.to(device) for d in depths])  # [F, H, W]
+    F = len(frame_ids)
+
+    ba = mc.joint_opt and not first and len(keyframes) > mc.ba_min_keyframes
+    free = torch.zeros(F, dtype=torch.bool)
+    if ba:
+        free[1:] = True  # oldest selected frame is the gauge
+        free &= torch.tensor([fid != 0 for fid in frame_ids])
+    factor = mc.lr_first_factor if first else 1.0
+    groups = scene.param_groups(cfg, factor)
+    cam = None
+    if bool(free.any()):
+        cam = torch.nn.Parameter(poses0[free].clone())
+        groups.append({"params": [cam], "lr": mc.joint_opt_cam_lr})
+    opt = torch.optim.Adam(groups)
+
+    per_frame = max(mc.pixels // F, 1)
+    iters = mc.iters_first if first else mc.iters
+    last = float("nan")
+    free_dev = free.to(device)
+    for _ in range(iters):
+        if cam is not None:
+            poses = poses0.clone()
+            poses[free_dev] = cam
+        else:
+            poses = poses0
+        c2w = pose_to_matrix(poses)  # [F, 4, 4]
+        v, u = sample_pixels(H, W, per_frame * F, 0, 0, generator)
+        fidx = torch.arange(F).repeat_interleave(per_frame)
+        v, u, fidx = v.to(device), u.to(device), fidx.to(device)
+        D = depths[fidx, v, u]
+        C = colors[fidx, v, u]
+        dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                    intrinsics.cy)
+        R_all = c2w[fidx]
+        dirs = (R_all[:, :3, :3] @ dirs_cam[..., None])[..., 0]
+        origins = R_all[:, :3, 3]
+        keep = ray_box_exit(origins, dirs, scene.aabb) >= D
+        if int(keep.sum()) == 0:
+            break
+        origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
+        out = render_rays(origins, dirs, D, scene.sdf_rgb, scene.beta, T, cfg.rendering.n_stratified,
+                          cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator)
+        loss, _ = total_loss(out.sdf, out.z, out.depth, out.color, D, C, T, weights)
+        if not torch.isfinite(loss):
+            return MapResult(pose, frame_ids, float("nan"), False)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        last = float(loss.detach())
+
+    refined = pose
+    if cam is not None:
+        new = _normalised(cam.detach().cpu())
+        if bool(torch.isfinite(new).all()):
+            free_pos = torch.nonzero(free).flatten().tolist()
+            for k, pos in enumerate(free_pos):
+                if pos < len(window):
+                    keyframes.frames[window[pos]].pose = new[k].clone()
+                else:
+                    refined = new[k].clone()
+    return MapResult(refined, frame_ids, last, True)

@@ -1,0 +1,124 @@
+"""Tracking (eslam-pipeline.md §4): optimise the current camera pose against the frozen map.
+
+A fresh Adam (betas 0.5, 0.999) over the quaternion (``lr_r``) and translation (``lr_t``); every iteration draws
+new pixels; the loss at the pose *before* each step is recorded and the best one is returned (best-loss
+selection, no early stopping). The scene's parameters are frozen for the duration, so backward reaches only
+the pose. A non-finite loss ends the optimisation; if no finite loss was seen the caller falls back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from slam.config import Config
+from slam.losses import LossWeights, total_loss, tracking_inliers
+from slam.pose import pose_to_matrix, standardize_quaternion
+from slam.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
+
+
+@dataclass
+class TrackResult:
+    pose: torch.Tensor  # [7]
+    loss: float  # best loss (nan if none was finite)
+    ok: bool
+    message: str = ""
+
+
+class frozen:
+    """Context manager: ``requires_grad_(False)`` on a module, restored on exit."""
+
+    def __init__(self, module: torch.nn.Module):
+        self.module = module
+        self.flags: list[tuple[torch.nn.Parameter, bool]] = []
+
+    def __enter__(self):
+        self.flags = [(p, p.requires_grad) for p in self.module.parameters()]
+        for p, _ in self.flags:
+            p.requires_grad_(False)
+        return self.module
+
+    def __exit__(self, *exc):
+        for p, flag in self.flags:
+            p.requires_grad_(flag)
+        return False
+
+
+def track_frame(
+    scene,
+    color: torch.Tensor,
+    depth: torch.Tensor,
+    intrinsics,
+    init_pose: torch.Tensor,
+    cfg: Config,
+    generator: torch.Generator,
+) -> TrackResult:
+    """Estimate the camera-to-world pose of one frame.
+
+    Args:
+        scene: :class:`slam.scene.SceneModel` (frozen here).
+        color: ``[H, W, 3]`` RGB in [0, 1]; depth: ``[H, W]`` metres (0 invalid); on the scene's device.
+        intrinsics: ``slam.data.Intrinsics`` of the working image.
+        init_pose: ``[7]`` (q, t) starting pose.
+        cfg: resolved config (``tracking``, ``rendering``, ``scene.truncation``).
+        generator: CPU generator for pixel and sample draws.
+
+    Returns:
+        :class:`TrackResult` with the best-loss pose.
+    """
+    tc = cfg.tracking
+    device = depth.device
+    H, W = depth.shape
+    weights = LossWeights(**vars(tc.weights))
+    T = cfg.scene.truncation
+    q = torch.nn.Parameter(init_pose[:4].clone().to(device))
+    t = torch.nn.Parameter(init_pose[4:].clone().to(device))
+    opt = torch.optim.Adam([{"params": [q], "lr": tc.lr_r}, {"params": [t], "lr": tc.lr_t}], betas=(0.5, 0.999))
+    best_loss = float("inf")
+    best_pose = None
+    message = ""
+    with frozen(scene):
+        for _ in range(tc.iters):
+            v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
+            v, u = v.to(device), u.to(device)
+            D = depth[v, u]
+            C = color[v, u]
+            c2w = pose_to_matrix(torch.cat((q, t)))
+            dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy,
+                                        intrinsics.cx, intrinsics.cy)
+            origins, dirs = camera_rays(c2w, dirs_cam)
+            keep = (D > 0) & (ray_box_exit(origins, dirs, scene.aabb) >= D)
+            if int(keep.sum()) < 10:
+                message = "too few rays with valid depth inside the scene box"
+                break
+            origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
+            out = render_rays(origins, dirs, D, scene.sdf_rgb, scene.beta, T, cfg.rendering.n_stratified,
+                              cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator)
+            if not bool(torch.isfinite(out.depth).all()):
+                message = "non-finite rendered depth"
+                break
+            inl = tracking_inliers(out.depth, D, tc.outlier_factor)
+            if int(inl.sum()) < 10:
+                message = "too few inlier rays"
+                break
+            loss, _ = total_loss(out.sdf[inl], out.z[inl], out.depth[inl], out.color[inl], D[inl], C[inl], T,
+                                 weights)
+            value = float(loss.detach())
+            if not torch.isfinite(loss):
+                message = "non-finite tracking loss"
+                break
+            if value < best_loss:
+                best_loss = value
+                best_pose = torch.cat((q, t)).detach().clone()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            if not bool(torch.isfinite(q).all() and torch.isfinite(t).all()):
+                message = "non-finite pose update"
+                break
+    if best_pose is None or not bool(torch.isfinite(best_pose).all()):
+        return TrackResult(init_pose.clone(), float("nan"), False, message or "no finite pose")
+    q_n = best_pose[:4] / best_pose[:4].norm().clamp(min=1e-12)
+    best_pose = torch.cat((standardize_quaternion(q_n), best_pose[4:]))
+    return TrackResult(best_pose.cpu(), best_loss, True, message)
