@@ -100,6 +100,23 @@ def auto_bound(depths: list[torch.Tensor], c2w0: torch.Tensor, percentile: float
     return [[c[a] - r, c[a] + r] for a in range(3)]
 
 
+def set_threads(n: int) -> None:
+    """Use ``n`` CPU threads for torch and, when tdfields' numba kernels are in use, for numba (0: defaults).
+
+    On a small shared CPU one thread per process is usually fastest: spinning worker threads of two runtimes
+    (OpenMP in torch, numba's pool) otherwise fight over the same cores.
+    """
+    if n <= 0:
+        return
+    torch.set_num_threads(n)
+    try:
+        import numba
+
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    except Exception:  # numba absent or not used: nothing to do
+        pass
+
+
 # --------------------------------------------------------------------------------------------------- loop
 @dataclass
 class RunState:
@@ -122,8 +139,7 @@ class SLAM:
         self.ds = dataset
         self.device = torch.device(device)
         self.indices = frame_indices(len(dataset), cfg)
-        if cfg.threads > 0:
-            torch.set_num_threads(cfg.threads)
+        set_threads(cfg.threads)
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)
