@@ -326,7 +326,7 @@ def run_to_folder(cfg: Config, out: str | Path, progress: bool = True, mesh: boo
         "parameters": parameter_counts(system.scene),
         "device": str(device),
         "cpu": cpu_name(),
-        "threads": torch.get_num_threads(),
+        "threads": cfg.threads,
         "version": tdfields.__version__,
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "events": system.state.events,
