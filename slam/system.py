@@ -101,20 +101,13 @@ def auto_bound(depths: list[torch.Tensor], c2w0: torch.Tensor, percentile: float
 
 
 def set_threads(n: int) -> None:
-    """Use ``n`` CPU threads for torch and, when tdfields' numba kernels are in use, for numba (0: defaults).
+    """Use ``n`` CPU threads for torch and tdfields' fused kernels, which follow torch's count (0: defaults).
 
-    On a small shared CPU one thread per process is usually fastest: spinning worker threads of two runtimes
-    (OpenMP in torch, numba's pool) otherwise fight over the same cores.
+    On a small shared CPU one thread per process is usually fastest: OpenMP's spinning worker threads otherwise
+    fight with other work over the same cores.
     """
-    if n <= 0:
-        return
-    torch.set_num_threads(n)
-    try:
-        import numba
-
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    except Exception:  # numba absent or not used: nothing to do
-        pass
+    if n > 0:
+        torch.set_num_threads(n)
 
 
 # --------------------------------------------------------------------------------------------------- loop

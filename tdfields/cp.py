@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from einops import reduce
-
 from tdfields.field import FactorSpec, Field
 
 
@@ -23,5 +21,5 @@ class CP(Field):
         w = self.rank * self.channels
         return {"x": FactorSpec((0,), w), "y": FactorSpec((1,), w), "z": FactorSpec((2,), w)}
 
-    def combine(self, samples):
-        return reduce(samples["x"] * samples["y"] * samples["z"], "n (k c) -> n c", "sum", k=self.rank)
+    def terms(self):
+        return [("x", "y", "z")]

@@ -17,5 +17,5 @@ class DenseGrid(Field):
     def factor_specs(self):
         return {"volume": FactorSpec((0, 1, 2), self.channels)}
 
-    def combine(self, samples):
-        return samples["volume"]
+    def terms(self):
+        return [("volume",)]

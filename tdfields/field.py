@@ -1,8 +1,8 @@
 """The one base class every decomposition derives from.
 
 A kind is fully described by (1) its factors: named channels-last tensors, each spanning one, two or three
-of the axes x, y, z, and (2) a combine rule that turns the factors interpolated at a point into ``C`` features.
-Everything else (box handling, interpolation, parameter accounting, resizing, saving) lives here once.
+of the axes x, y, z, and (2) its product terms: which factors' interpolants multiply (elementwise, then summed
+over rank). Everything else (box handling, the query, parameter accounting, resizing, saving) lives here once.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ import torch
 from torch import nn
 
 from tdfields.bounds import as_aabb, contains, grid_shape_for
-from tdfields.interpolation import interpolate, to_grid_coords
+from tdfields.interpolation import to_grid_coords
+from tdfields.program import Program, evaluate, single
 
 COMPLEXITIES = ("O(n)", "O(n^2)", "O(n^3)")
 
@@ -37,8 +38,9 @@ class FactorSpec(tuple):
 class Field(nn.Module):
     """A feature field ``f: R^3 -> R^C`` over an axis-aligned box, stored as interpolated factor grids.
 
-    Subclasses define :meth:`factor_specs` (which factors exist) and :meth:`combine` (how interpolated factors
-    become features). Construct with either ``cell_size`` or ``grid_shape``.
+    Subclasses define :meth:`factor_specs` (which factors exist) and :meth:`terms` (which of them multiply).
+    The features are ``sum_terms sum_r prod_{f in term} interp(f)[r*C:(r+1)*C]``. Construct with either
+    ``cell_size`` or ``grid_shape``.
 
     Args:
         aabb: ``[[x0, x1], [y0, y1], [z0, z1]]`` in metres. Stored as a ``(3, 2)`` buffer (never a parameter).
@@ -102,9 +104,25 @@ class Field(nn.Module):
         """Factor name -> :class:`FactorSpec` (axes spanned, channel width)."""
         raise NotImplementedError
 
-    def combine(self, samples: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        """Interpolated factors ``{name: [N, width]}`` -> features ``[N, C]``."""
+    def terms(self) -> list[tuple[str, ...]]:
+        """Product terms: tuples of factor names whose interpolants multiply elementwise (at most 3 per term).
+
+        Every factor of a term has width ``k * C`` (rank-major, channel-minor); the product is summed over the
+        ``k`` rank components, and the terms are summed.
+        """
         raise NotImplementedError
+
+    def combine(self, samples: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """Interpolated factors ``{name: [N, width]}`` -> features ``[N, C]`` (the terms, in plain PyTorch)."""
+        out = None
+        for term in self.terms():
+            prod = samples[term[0]]
+            for name in term[1:]:
+                prod = prod * samples[name]
+            if prod.shape[-1] != self.channels:
+                prod = prod.reshape(prod.shape[0], -1, self.channels).sum(1)
+            out = prod if out is None else out + prod
+        return out
 
     # -- the query -------------------------------------------------------------------------------------------
     @property
@@ -129,9 +147,22 @@ class Field(nn.Module):
 
     def features_at(self, coords: torch.Tensor) -> torch.Tensor:
         """Features at continuous grid indices ``[N, 3]`` (see :func:`to_grid_coords`) -> ``[N, C]``."""
-        samples = {name: interpolate(self.factors[name], coords[:, list(spec.axes)])
-                   for name, spec in self.factor_specs().items()}
-        return self.combine(samples)
+        program, tensors = self.query_plan(coords.shape[0])
+        return evaluate(program, tensors, coords[None])
+
+    def query_plan(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
+        """The :class:`tdfields.program.Program` and tensors a query of ``num_points`` points evaluates.
+
+        By default the factors themselves; a kind may substitute equivalent tensors (Six-axis composes its planes
+        for large batches). :class:`tdfields.MultiResolution` concatenates its levels' plans into one pass.
+        """
+        specs = self.factor_specs()
+        names = list(specs)
+        index = {name: i for i, name in enumerate(names)}
+        terms = self.terms()
+        program = single([specs[n].axes for n in names], [tuple(index[n] for n in t) for t in terms],
+                         [specs[t[0]].width // self.channels for t in terms], self.channels)
+        return program, [self.factors[n] for n in names]
 
     def contains(self, points: torch.Tensor) -> torch.Tensor:
         """``[..., 3]`` world points -> ``[...]`` bool mask, True inside the (closed) box."""

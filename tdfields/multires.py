@@ -9,6 +9,8 @@ from torch import nn
 
 from tdfields.bounds import contains
 from tdfields.field import COMPLEXITIES, Field
+from tdfields.interpolation import to_grid_coords
+from tdfields.program import concat, evaluate
 
 
 class MultiResolution(nn.Module):
@@ -55,8 +57,22 @@ class MultiResolution(nn.Module):
         return max((level.complexity for level in self.levels), key=COMPLEXITIES.index)
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
-        """``[..., 3]`` world metres -> ``[..., out_dim]`` (levels concatenated in order)."""
-        return torch.cat([level(points) for level in self.levels], dim=-1)
+        """``[..., 3]`` world metres -> ``[..., out_dim]`` (levels concatenated in order).
+
+        When every level is a :class:`tdfields.Field`, their query plans are concatenated and evaluated in one
+        pass (one fused kernel call for coarse + fine).
+        """
+        if points.shape[-1] != 3:
+            raise ValueError(f"MultiResolution: points must have shape [..., 3], got {tuple(points.shape)}")
+        if not all(isinstance(level, Field) for level in self.levels):
+            return torch.cat([level(points) for level in self.levels], dim=-1)
+        lead = points.shape[:-1]
+        flat = points.reshape(-1, 3)
+        coords = torch.stack([to_grid_coords(flat, level.aabb, level.grid_shape) for level in self.levels])
+        plans = [level.query_plan(flat.shape[0]) for level in self.levels]
+        program = concat([p for p, _ in plans])
+        out = evaluate(program, [t for _, tensors in plans for t in tensors], coords)
+        return out.reshape(*lead, self.out_dim)
 
     def contains(self, points: torch.Tensor) -> torch.Tensor:
         """``[..., 3]`` -> ``[...]`` bool, inside the union box."""

@@ -5,14 +5,15 @@ from __future__ import annotations
 from typing import ClassVar
 
 import torch
-from einops import rearrange, reduce
 
 from tdfields.field import FactorSpec, Field
-from tdfields.interpolation import interpolate
+from tdfields.kernels import compose_plane
+from tdfields.program import Program, single
 
 # plane name -> (first axis, second axis); factor names are f"{plane}_{axis letter}"
 _PLANES = {"xy": (0, 1), "yz": (1, 2), "zx": (2, 0)}
 _AXIS = "xyz"
+_PLANE_PROGRAM_TERMS = [(0,), (1,), (2,)]
 
 
 class SixAxis(Field):
@@ -21,17 +22,22 @@ class SixAxis(Field):
     Parameters ``2 k C (n_x + n_y + n_z)``. Shapes: ``[..., 3]`` world metres -> ``[..., C]``.
     Factors ``xy_x [n_x, k*C]``, ``xy_y [n_y, k*C]``, ``yz_y``, ``yz_z``, ``zx_z``, ``zx_x`` (rank-major).
 
-    Two exact evaluation strategies, chosen per call by ``strategy``:
+    Exact evaluation strategies, chosen per call by ``strategy``:
 
-    * ``"factors"``: interpolate the six line factors at every point and multiply. Memory ``O(N k C)`` for N
-      points and ``O(n)`` in the grid: the strategy whose memory grows linearly with the scene.
+    * ``"factors"``: interpolate the six line factors at every point and multiply. Memory ``O(N k C)`` work
+      per batch and ``O(n)`` in the grid: the strategy whose memory grows linearly with the scene.
     * ``"planes"``: first compose the three rank-k planes ``P_xy[x, y] = sum_i u_i[x] v_i[y]`` (a batched matmul,
       ``O(k C n^2)`` flops) and then interpolate them bilinearly. Bilinear interpolation of a separable product
       equals the product of the linear interpolations, so the result is the same up to float rounding, while the
-      per-point work drops ``4k``-fold (one 32-wide gather per corner instead of ``k*C``-wide gathers per factor).
-      The composed planes are temporaries of size ``C (n_x n_y + n_y n_z + n_z n_x)``.
-    * ``"auto"`` (default) composes when those temporaries are smaller than the per-point intermediates of the
-      factor path (``N k C`` per factor), i.e. for tracking/mapping-sized batches on room-sized scenes.
+      per-point work drops ``4k``-fold. The composed planes are temporaries of size
+      ``C (n_x n_y + n_y n_z + n_z n_x)``.
+    * ``"auto"`` (default): planes when composing them costs less than the per-point work of the factor path
+      (large batches: mapping), and always when no gradient to the factors is needed (tracking with a frozen
+      map, meshing, rendering): the composed planes are then cached and reused until a factor changes.
+
+    Plane cache: valid while every factor is the same tensor at the same version (autograd's in-place counter,
+    which optimizer steps and ``load_state_dict`` advance). Edits through ``.data`` bypass that counter; call
+    :meth:`clear_cache` after them.
     """
 
     kind = "six_axis"
@@ -45,34 +51,64 @@ class SixAxis(Field):
         if strategy not in self.strategies:
             raise ValueError(f"SixAxis: strategy must be one of {self.strategies}, got {strategy!r}")
         self.strategy = strategy
+        self._plane_cache: tuple[list, list[torch.Tensor]] | None = None
 
     def factor_specs(self):
         w = self.rank * self.channels
         return {f"{plane}_{_AXIS[a]}": FactorSpec((a,), w) for plane, axes in _PLANES.items() for a in axes}
 
-    def combine(self, samples):
-        total = sum(samples[f"{plane}_{_AXIS[a]}"] * samples[f"{plane}_{_AXIS[b]}"] for plane, (a, b) in _PLANES.items())
-        return reduce(total, "n (k c) -> n c", "sum", k=self.rank)
+    def terms(self):
+        return [(f"{plane}_{_AXIS[a]}", f"{plane}_{_AXIS[b]}") for plane, (a, b) in _PLANES.items()]
 
     def composed_plane(self, plane: str) -> torch.Tensor:
         """The rank-k plane ``P[a, b, c] = sum_i U[a, i, c] V[b, i, c]`` as ``[n_a, n_b, C]`` (differentiable)."""
         a, b = _PLANES[plane]
-        u = rearrange(self.factors[f"{plane}_{_AXIS[a]}"], "n (k c) -> c n k", k=self.rank)
-        v = rearrange(self.factors[f"{plane}_{_AXIS[b]}"], "n (k c) -> c k n", k=self.rank)
-        return rearrange(torch.bmm(u, v), "c na nb -> na nb c")
+        return compose_plane(self.factors[f"{plane}_{_AXIS[a]}"], self.factors[f"{plane}_{_AXIS[b]}"], self.rank)
+
+    def _needs_graph(self) -> bool:
+        return torch.is_grad_enabled() and any(p.requires_grad for p in self.factors.values())
+
+    def composed_planes(self) -> list[torch.Tensor]:
+        """The three composed planes ``xy [n_x, n_y, C]``, ``yz [n_y, n_z, C]``, ``zx [n_z, n_x, C]``.
+
+        Differentiable when a gradient to the factors is needed; otherwise cached (see the class docstring).
+        """
+        if self._needs_graph():
+            return [self.composed_plane(p) for p in _PLANES]
+        factors = list(self.factors.values())
+        key = [(p, p._version) for p in factors]
+        cached = self._plane_cache
+        if cached is None or len(cached[0]) != len(key) or any(
+                a is not b or va != vb for (a, va), (b, vb) in zip(cached[0], key)):
+            with torch.no_grad():
+                planes = [self.composed_plane(p) for p in _PLANES]
+            self._plane_cache = (key, planes)
+        return self._plane_cache[1]
+
+    def clear_cache(self) -> None:
+        """Drop the cached composed planes (needed only after edits through ``.data``)."""
+        self._plane_cache = None
+
+    def _apply(self, fn, *args, **kwargs):
+        # .to() / .cuda() / .double() replace the factors; a cache from before would hold the old tensors alive
+        self._plane_cache = None
+        return super()._apply(fn, *args, **kwargs)
 
     def use_planes(self, num_points: int) -> bool:
         """Whether ``strategy`` picks plane composition for a batch of ``num_points``."""
         if self.strategy != "auto":
             return self.strategy == "planes"
+        if not self._needs_graph():
+            return True
         n = self.grid_shape
         plane_elems = self.channels * (n[0] * n[1] + n[1] * n[2] + n[2] * n[0])
         return plane_elems < num_points * self.rank * self.channels
 
-    def features_at(self, coords):
-        if not self.use_planes(coords.shape[0]):
-            return super().features_at(coords)
-        return sum(interpolate(self.composed_plane(plane), coords[:, list(axes)]) for plane, axes in _PLANES.items())
+    def query_plan(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
+        if not self.use_planes(num_points):
+            return super().query_plan(num_points)
+        program = single(list(_PLANES.values()), _PLANE_PROGRAM_TERMS, [1, 1, 1], self.channels)
+        return program, self.composed_planes()
 
     def spec(self):
         out = super().spec()

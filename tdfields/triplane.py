@@ -19,5 +19,5 @@ class TriPlane(Field):
         c = self.channels
         return {"xy": FactorSpec((0, 1), c), "xz": FactorSpec((0, 2), c), "yz": FactorSpec((1, 2), c)}
 
-    def combine(self, samples):
-        return samples["xy"] + samples["xz"] + samples["yz"]
+    def terms(self):
+        return [("xy",), ("xz",), ("yz",)]

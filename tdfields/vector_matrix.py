@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from einops import reduce
-
 from tdfields.field import FactorSpec, Field
 
 # (plane axes, line axis) for the three modes
@@ -33,6 +31,5 @@ class VectorMatrix(Field):
             specs[f"line_{mode}"] = FactorSpec((line,), w)
         return specs
 
-    def combine(self, samples):
-        total = sum(samples[f"plane_{m}"] * samples[f"line_{m}"] for m in _MODES)
-        return reduce(total, "n (k c) -> n c", "sum", k=self.rank)
+    def terms(self):
+        return [(f"plane_{m}", f"line_{m}") for m in _MODES]

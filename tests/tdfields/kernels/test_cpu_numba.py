@@ -73,3 +73,108 @@ def test_backend_selection_errors():
     assert kernels.get_backend() in kernels.BACKENDS
     with kernels.use_backend("torch"):
         assert not kernels.use_fused(torch.zeros(2, 1), torch.zeros(1, 1))
+
+
+def _mixed_stack(dtype):
+    """Coarse CP + fine Six-axis + a tri-plane level + VM + dense: every term shape in one program."""
+    box = [[0, 1], [-0.5, 1.5], [0, 0.8]]
+    levels = [
+        tdfields.CP(box, grid_shape=(4, 5, 3), channels=3, rank=2),
+        tdfields.SixAxis(box, grid_shape=(7, 6, 5), channels=3, rank=3, strategy="factors"),
+        tdfields.SixAxis(box, grid_shape=(6, 5, 4), channels=3, rank=2, strategy="planes"),
+        tdfields.TriPlane(box, grid_shape=(6, 7, 5), channels=2),
+        tdfields.VectorMatrix(box, grid_shape=(5, 4, 6), channels=2, rank=2),
+        tdfields.DenseGrid(box, grid_shape=(4, 4, 3), channels=2),
+    ]
+    return tdfields.MultiResolution(levels).to(dtype)
+
+
+@pytest.mark.parametrize("wants", [(True, True), (True, False), (False, True)])
+def test_multiresolution_program_matches_reference(wants):
+    torch.manual_seed(1)
+    f = _mixed_stack(torch.float64)
+    for p in f.parameters():
+        p.requires_grad_(wants[0])
+    x = torch.rand(700, 3, dtype=torch.float64) * torch.tensor([1.4, 2.4, 1.2], dtype=torch.float64) - 0.2
+    x[0] = torch.tensor([1.0, 1.5, 0.8])  # the far corner: every lower index clamped to size - 2
+    x.requires_grad_(wants[1])
+    inputs = [t for t, w in ((x, wants[1]),) if w] + ([p for p in f.parameters()] if wants[0] else [])
+    out = {}
+    for backend in ("torch", "numba"):
+        with kernels.use_backend(backend):
+            y = f(x)
+            g = torch.randn_like(y, generator=torch.Generator().manual_seed(2))
+            out[backend] = (y, torch.autograd.grad(y, inputs, g))
+    assert out["numba"][0].shape == (700, f.out_dim)
+    torch.testing.assert_close(out["numba"][0], out["torch"][0])
+    for a, b in zip(out["torch"][1], out["numba"][1]):
+        torch.testing.assert_close(b, a)
+
+
+def test_generated_kernels_stay_in_bounds(monkeypatch, tmp_path):
+    """Compile bounds-checked kernels (an out-of-range index raises IndexError) and run them at the box faces."""
+    monkeypatch.setenv("TDFIELDS_KERNEL_BOUNDSCHECK", "1")
+    monkeypatch.setenv("TDFIELDS_CACHE_DIR", str(tmp_path))
+    box = [[0, 1], [-0.5, 1.5], [0, 0.8]]
+    # factors spanning 1, 2 and 3 axes, terms of 1, 2 and 3 factors: every indexing pattern the generator writes
+    f = tdfields.MultiResolution([tdfields.CP(box, grid_shape=(4, 5, 3), channels=3, rank=2),
+                                  tdfields.VectorMatrix(box, grid_shape=(5, 4, 6), channels=2, rank=2),
+                                  tdfields.DenseGrid(box, grid_shape=(4, 4, 3), channels=2)])
+    x = torch.cat([torch.rand(50, 3) * 3 - 1, torch.tensor([[1.0, 1.5, 0.8], [0.0, -0.5, 0.0]])])
+    x.requires_grad_(True)
+    with kernels.use_backend("numba"):
+        f(x).square().sum().backward()
+    assert torch.isfinite(x.grad).all()
+    assert any(tmp_path.rglob("tdfields_kernel_*.py"))
+
+
+def test_second_derivative_through_a_larger_loss_raises():
+    """The gradient used inside a loss that also has other terms must not silently act as a constant."""
+    f = tdfields.SixAxis([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2, strategy="factors")
+    x = torch.rand(10, 3, requires_grad=True)
+    with kernels.use_backend("numba"):
+        y = f(x)
+        (g,) = torch.autograd.grad(y.sum(), x, create_graph=True)
+        loss = (g.norm(dim=-1) - 1).square().mean() + y.square().mean()
+        with pytest.raises(RuntimeError, match="differentiate twice"):
+            loss.backward()
+
+
+def test_two_pass_backward_and_thread_split_match_one_pass(monkeypatch):
+    """Large factors take coordinate and factor gradients in two passes, large batches run on several threads:
+    both must give the single-pass, single-thread result."""
+    torch.manual_seed(3)
+    f = tdfields.TriPlane([[0, 1]] * 3, grid_shape=(9, 8, 7), channels=4).double()
+    x = torch.rand(9000, 3, dtype=torch.float64, requires_grad=True)
+
+    def grads():
+        with kernels.use_backend("numba"):
+            y = f(x)
+            return torch.autograd.grad(y.square().sum(), [x, *f.parameters()])
+
+    base = grads()
+    monkeypatch.setattr(kernels, "_SPLIT_BACKWARD_FLOATS", 0)
+    monkeypatch.setattr(kernels, "_MIN_POINTS_PER_THREAD", 1000)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        split = grads()
+    finally:
+        torch.set_num_threads(previous)
+    for a, b in zip(base, split):
+        torch.testing.assert_close(b, a)
+
+
+@pytest.mark.parametrize("want", [(True, True), (True, False), (False, True)])
+def test_fused_composition_matches_einsum(want):
+    torch.manual_seed(0)
+    u = torch.randn(11, 4 * 8, dtype=torch.float64, requires_grad=want[0])
+    v = torch.randn(7, 4 * 8, dtype=torch.float64, requires_grad=want[1])
+    ref = torch.einsum("akc,bkc->abc", u.view(11, 4, 8), v.view(7, 4, 8))
+    with kernels.use_backend("numba"):
+        fused = kernels.compose_plane(u, v, 4)
+    torch.testing.assert_close(fused, ref)
+    g = torch.randn_like(ref)
+    inputs = [t for t, w in zip((u, v), want) if w]
+    for a, b in zip(torch.autograd.grad(ref, inputs, g), torch.autograd.grad(fused, inputs, g)):
+        torch.testing.assert_close(b, a)

@@ -1,0 +1,88 @@
+"""Compile, cache and load the kernels :mod:`tdfields.kernels.codegen` writes.
+
+Each specialised kernel's source goes to a file named after the hash of its text in the cache folder
+(``$TDFIELDS_CACHE_DIR``, else ``$XDG_CACHE_HOME/tdfields``, else ``~/.cache/tdfields``; a temporary folder when
+none is writable) and is imported from there, so numba's own on-disk cache (``cache=True``) keeps the compiled
+machine code beside it: a program is compiled once per machine, not once per process.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from types import ModuleType
+
+from tdfields.kernels.codegen import KERNEL_VERSION, backward_source, compose_source, forward_source
+from tdfields.program import Program
+
+_loaded: dict[tuple, ModuleType] = {}
+_lock = threading.Lock()
+
+
+def cache_dir() -> Path:
+    """The folder generated kernels are written to (created on first use)."""
+    env = os.environ.get("TDFIELDS_CACHE_DIR")
+    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tdfields"
+    folder = base / f"kernels-v{KERNEL_VERSION}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".probe-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError:
+        folder = Path(tempfile.gettempdir()) / f"tdfields-kernels-v{KERNEL_VERSION}-{os.getuid()}"
+        folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def bounds_checked() -> bool:
+    """``TDFIELDS_KERNEL_BOUNDSCHECK=1``: compile kernels with numba's index checks (slow; for tests)."""
+    return os.environ.get("TDFIELDS_KERNEL_BOUNDSCHECK", "") not in ("", "0")
+
+
+def forward_kernel(program: Program, widths: tuple[int, ...]):
+    """``forward`` specialised to this program and factor widths."""
+    checked = bounds_checked()
+    return _module(("forward", program, widths, checked), lambda: forward_source(program, widths, checked)).forward
+
+
+def backward_kernel(program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...], want_coords: bool):
+    """``backward`` producing exactly the wanted gradients."""
+    checked = bounds_checked()
+    key = ("backward", program, widths, want_factors, want_coords, checked)
+    return _module(key, lambda: backward_source(program, widths, want_factors, want_coords, checked)).backward
+
+
+def compose_kernels(rank: int, channels: int) -> ModuleType:
+    """``compose_forward`` / ``compose_backward`` for rank-k planes of C channels (Six-axis)."""
+    checked = bounds_checked()
+    return _module(("compose", rank, channels, checked), lambda: compose_source(rank, channels, checked))
+
+
+def _module(key: tuple, make_source) -> ModuleType:
+    module = _loaded.get(key)
+    if module is not None:
+        return module
+    with _lock:
+        module = _loaded.get(key)
+        if module is None:
+            text = make_source()
+            digest = hashlib.sha1(text.encode()).hexdigest()[:20]
+            name = f"tdfields_kernel_{digest}"
+            path = cache_dir() / f"{name}.py"
+            if not path.exists() or path.read_text() != text:
+                # write-then-rename: another process importing the same kernel never sees half a file
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_text(text)
+                os.replace(tmp, path)
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+            _loaded[key] = module
+    return module
