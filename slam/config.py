@@ -80,9 +80,14 @@ class LossWeightsConfig:
 
 @dataclass
 class RenderingConfig:
+    """Samples per ray (``n_stratified`` in [0, 1.2 D] + ``n_importance`` in D +- 1.5 T), jitter, and
+    ``color_cutoff``: samples whose compositing weight is at most this skip the colour query (0: every sample,
+    as ESLAM)."""
+
     n_stratified: int = 32
     n_importance: int = 8
     perturb: bool = True
+    color_cutoff: float = 0.0
 
 
 @dataclass

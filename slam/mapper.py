@@ -123,8 +123,9 @@ def map_frame(
         if int(keep.sum()) == 0:
             break
         origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
-        out = render_rays(origins, dirs, D, scene.sdf_rgb, scene.beta, T, cfg.rendering.n_stratified,
-                          cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator)
+        out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, scene.beta, T, cfg.rendering.n_stratified,
+                          cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator,
+                          cfg.rendering.color_cutoff)
         loss, _ = total_loss(out.sdf, out.z, out.depth, out.color, D, C, T, weights)
         if not torch.isfinite(loss):
             return MapResult(pose, frame_ids, float("nan"), False)

@@ -1,7 +1,7 @@
 """Functional ray core: pixel rays, ray/box exit, ESLAM's sampling and SDF volume compositing.
 
-Nothing here owns a model. :func:`render_rays` takes a callable ``sdf_rgb_fn(points) -> (sdf, rgb)`` so the same
-code renders any representation (and a hand-written stand-in in the tests).
+Nothing here owns a model. :func:`render_rays` takes two callables, ``sdf_fn(points) -> sdf`` and
+``rgb_fn(points) -> rgb``, so the same code renders any representation (and a hand-written stand-in in the tests).
 
 Conventions (see docs/data.md): OpenCV camera, x right, y down, z forward. The pixel direction is
 ``d = ((u - cx)/fx, (v - cy)/fy, 1)`` rotated into the world and **not normalised**, so the ray parameter ``z`` is
@@ -15,7 +15,8 @@ from typing import Callable
 
 import torch
 
-SdfRgbFn = Callable[[torch.Tensor], "tuple[torch.Tensor, torch.Tensor]"]
+SdfFn = Callable[[torch.Tensor], torch.Tensor]
+RgbFn = Callable[[torch.Tensor], torch.Tensor]
 
 
 def pixel_directions(u: torch.Tensor, v: torch.Tensor, fx: float, fy: float, cx: float, cy: float) -> torch.Tensor:
@@ -161,7 +162,8 @@ def render_rays(
     origins: torch.Tensor,
     dirs: torch.Tensor,
     depth: torch.Tensor,
-    sdf_rgb_fn: SdfRgbFn,
+    sdf_fn: SdfFn,
+    rgb_fn: RgbFn,
     beta: torch.Tensor | float,
     truncation: float,
     n_stratified: int,
@@ -169,19 +171,24 @@ def render_rays(
     aabb: torch.Tensor | None = None,
     perturb: bool = True,
     generator: torch.Generator | None = None,
+    color_cutoff: float = 0.0,
 ) -> RenderOut:
     """Render rays with ESLAM's sampling and compositing.
 
     Rays with ``depth > 0`` sample around the measurement; rays without depth (``depth <= 0``) sample
-    ``[0, t_exit + 0.01]`` stratified, then ``n_importance`` inverse-CDF samples from a no-grad pass.
+    ``[0, t_exit + 0.01]`` stratified, then ``n_importance`` inverse-CDF samples from a no-grad SDF pass.
 
     Args:
         origins, dirs: ``[R, 3]`` world rays (``dirs`` with unit camera z; differentiable for tracking/BA).
         depth: ``[R]`` measured depth in metres, ``0`` where invalid.
-        sdf_rgb_fn: ``points [P, 3] -> (sdf [P], rgb [P, 3])``; sdf normalised (tanh), rgb in (0, 1).
+        sdf_fn: ``points [P, 3] -> sdf [P]``, normalised (tanh).
+        rgb_fn: ``points [P, 3] -> rgb [P, 3]`` in (0, 1).
         beta: sharpness of the SDF-to-density map (scalar tensor or float).
         truncation: TSDF truncation ``T`` in metres.
         aabb: ``(3, 2)`` scene box, required when some rays have no depth.
+        color_cutoff: samples whose compositing weight is at most this get no colour query (their colour counts
+            as 0). ``0`` queries every sample, as ESLAM does. A positive cutoff skips the free space in front of a
+            surface and everything behind it, so the rendered colour changes by at most ``N * color_cutoff``.
 
     Returns:
         :class:`RenderOut`.
@@ -206,17 +213,22 @@ def render_rays(
         if n_importance > 0:
             with torch.no_grad():
                 pts = origins[inv].detach()[:, None] + dirs[inv].detach()[:, None] * zs[..., None]
-                s, _ = sdf_rgb_fn(pts.reshape(-1, 3))
+                s = sdf_fn(pts.reshape(-1, 3))
                 w = composite_weights(sdf_to_alpha(s.reshape(zs.shape), beta))
                 mids = 0.5 * (zs[..., 1:] + zs[..., :-1])
                 zi = sample_pdf(mids, w[..., 1:-1], n_importance, generator, deterministic=not perturb)
             zs = torch.sort(torch.cat((zs, zi), -1), -1).values
         z[inv] = zs
-    pts = origins[:, None, :] + dirs[:, None, :] * z[..., None]
-    sdf, rgb = sdf_rgb_fn(pts.reshape(-1, 3))
-    sdf = sdf.reshape(R, N)
-    rgb = rgb.reshape(R, N, 3)
+    pts = (origins[:, None, :] + dirs[:, None, :] * z[..., None]).reshape(-1, 3)
+    sdf = sdf_fn(pts).reshape(R, N)
     w = composite_weights(sdf_to_alpha(sdf, beta))
+    if color_cutoff > 0:
+        keep = (w.detach() > color_cutoff).reshape(-1)
+        rgb = pts.new_zeros(R * N, 3)
+        rgb[keep] = rgb_fn(pts[keep])
+        rgb = rgb.reshape(R, N, 3)
+    else:
+        rgb = rgb_fn(pts).reshape(R, N, 3)
     return RenderOut(
         depth=(w * z).sum(-1),
         color=(w[..., None] * rgb).sum(-2),

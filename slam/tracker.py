@@ -93,8 +93,9 @@ def track_frame(
                 message = "too few rays with valid depth inside the scene box"
                 break
             origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
-            out = render_rays(origins, dirs, D, scene.sdf_rgb, scene.beta, T, cfg.rendering.n_stratified,
-                              cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator)
+            out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, scene.beta, T, cfg.rendering.n_stratified,
+                              cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator,
+                              cfg.rendering.color_cutoff)
             if not bool(torch.isfinite(out.depth).all()):
                 message = "non-finite rendered depth"
                 break

@@ -103,8 +103,10 @@ def num_threads() -> int:
 
 
 def _split(n_points: int, parts: int) -> list[tuple[int, int]]:
+    if n_points <= 0:
+        return [(0, 0)]
     step = -(-n_points // parts)
-    return [(a, min(n_points, a + step)) for a in range(0, n_points, step)] or [(0, 0)]
+    return [(a, min(n_points, a + step)) for a in range(0, n_points, step)]
 
 
 def _run(jobs) -> None:
@@ -125,6 +127,10 @@ def _run(jobs) -> None:
 
 def _parts(n_points: int) -> int:
     return max(1, min(num_threads(), n_points // _MIN_POINTS_PER_THREAD))
+
+
+def _dtype_name(dtype: torch.dtype) -> str:
+    return {torch.float32: "float32", torch.float64: "float64"}[dtype]
 
 
 def _sizes(program: Program, grids) -> np.ndarray:
@@ -167,7 +173,7 @@ class _FusedProgram(torch.autograd.Function):
         c = coords.detach().to(dtype).contiguous()
         sizes = _sizes(program, grids)
         out = torch.empty(c.shape[1], program.out_dim, dtype=dtype)
-        kernel = forward_kernel(program, widths)
+        kernel = forward_kernel(program, widths, _dtype_name(dtype))
         args = (*views, sizes, c.numpy(), out.numpy())
         _run([lambda a=a, b=b: kernel(*args, a, b) for a, b in _split(c.shape[1], _parts(c.shape[1]))])
         ctx.program = program
@@ -204,12 +210,13 @@ class _FusedProgram(torch.autograd.Function):
         grad_coords = torch.zeros_like(c) if want_coords else torch.zeros((1, 1, 3), dtype=dtype)
         views = [g.view(-1, g.shape[-1]).numpy() for g in grids]
         go = grad_out.detach().to(dtype).contiguous()
-        common = (*views, ctx.sizes, c.numpy(), go.numpy())
+        chans = np.asarray([ctx.widths[t[0]] // k for t, k in zip(ctx.program.terms, ctx.program.ranks)], np.int64)
+        common = (*views, ctx.sizes, chans, c.numpy(), go.numpy())
         passes = [(want, want_coords)]
         if want_coords and any(want) and sum(g.numel() for g in grids) > _SPLIT_BACKWARD_FLOATS:
             passes = [(tuple(False for _ in want), True), (want, False)]
         for want_f, want_c in passes:
-            kernel = backward_kernel(ctx.program, ctx.widths, want_f, want_c)
+            kernel = backward_kernel(ctx.program, ctx.widths, want_f, want_c, _dtype_name(dtype))
             _run([lambda a=a, b=b, bufs=bufs: kernel(*common, *[t.numpy() for t in bufs] if any(want_f) else (),
                                                      grad_coords.numpy(), a, b)
                   for (a, b), bufs in zip(_split(n_points, parts), buffers)])
@@ -247,7 +254,7 @@ class _FusedCompose(torch.autograd.Function):
         uc, vc = u.detach().contiguous(), v.detach().contiguous()
         channels = uc.shape[1] // rank
         plane = torch.empty(uc.shape[0], vc.shape[0], channels, dtype=uc.dtype)
-        mod = compose_kernels(rank, channels)
+        mod = compose_kernels(rank, channels, _dtype_name(uc.dtype))
         flat = plane.view(-1, channels).numpy()
         _run([lambda a=a, b=b: mod.compose_forward(uc.numpy(), vc.numpy(), flat, a, b)
               for a, b in _split(uc.shape[0], _parts(uc.shape[0] * vc.shape[0]))])
@@ -263,7 +270,7 @@ class _FusedCompose(torch.autograd.Function):
         want_u, want_v = bool(ctx.needs_input_grad[0]), bool(ctx.needs_input_grad[1])
         with torch.no_grad():
             gp = grad_plane.detach().to(uc.dtype).contiguous()
-            mod = compose_kernels(ctx.rank, gp.shape[-1])
+            mod = compose_kernels(ctx.rank, gp.shape[-1], _dtype_name(uc.dtype))
             flat = gp.view(-1, gp.shape[-1]).numpy()
             ranges = _split(uc.shape[0], _parts(uc.shape[0] * vc.shape[0]))
             gu = torch.empty_like(uc) if want_u else torch.zeros((1, 1), dtype=uc.dtype)

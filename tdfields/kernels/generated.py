@@ -45,23 +45,25 @@ def bounds_checked() -> bool:
     return os.environ.get("TDFIELDS_KERNEL_BOUNDSCHECK", "") not in ("", "0")
 
 
-def forward_kernel(program: Program, widths: tuple[int, ...]):
-    """``forward`` specialised to this program and factor widths."""
+def forward_kernel(program: Program, widths: tuple[int, ...], dtype: str):
+    """``forward`` specialised to this program, factor widths and dtype (``"float32"`` / ``"float64"``)."""
     checked = bounds_checked()
-    return _module(("forward", program, widths, checked), lambda: forward_source(program, widths, checked)).forward
+    key = ("forward", program, widths, dtype, checked)
+    return _module(key, lambda: forward_source(program, widths, dtype, checked)).forward
 
 
-def backward_kernel(program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...], want_coords: bool):
+def backward_kernel(program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...], want_coords: bool,
+                    dtype: str):
     """``backward`` producing exactly the wanted gradients."""
     checked = bounds_checked()
-    key = ("backward", program, widths, want_factors, want_coords, checked)
-    return _module(key, lambda: backward_source(program, widths, want_factors, want_coords, checked)).backward
+    key = ("backward", program, widths, want_factors, want_coords, dtype, checked)
+    return _module(key, lambda: backward_source(program, widths, want_factors, want_coords, dtype, checked)).backward
 
 
-def compose_kernels(rank: int, channels: int) -> ModuleType:
+def compose_kernels(rank: int, channels: int, dtype: str) -> ModuleType:
     """``compose_forward`` / ``compose_backward`` for rank-k planes of C channels (Six-axis)."""
     checked = bounds_checked()
-    return _module(("compose", rank, channels, checked), lambda: compose_source(rank, channels, checked))
+    return _module(("compose", rank, channels, dtype, checked), lambda: compose_source(rank, channels, dtype, checked))
 
 
 def _module(key: tuple, make_source) -> ModuleType:

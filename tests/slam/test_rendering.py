@@ -77,15 +77,16 @@ def test_render_rays_plane_depth():
     # a plane z = 2 in front of a camera at the origin: sdf = (2 - z) / T clipped
     T = 0.06
 
-    def field(p):
-        s = torch.clamp((2.0 - p[:, 2]) / T, -1, 1)
-        rgb = torch.full((p.shape[0], 3), 0.5)
-        return s, rgb
+    def sdf(p):
+        return torch.clamp((2.0 - p[:, 2]) / T, -1, 1)
+
+    def rgb(p):
+        return torch.full((p.shape[0], 3), 0.5)
 
     o = torch.zeros(16, 3)
     d = torch.cat((torch.zeros(16, 2), torch.ones(16, 1)), -1)
     D = torch.full((16,), 2.0)
-    out = render_rays(o, d, D, field, 10.0, T, 32, 8, perturb=False)
+    out = render_rays(o, d, D, sdf, rgb, 10.0, T, 32, 8, perturb=False)
     assert out.sdf.shape == (16, 40) and out.z.shape == (16, 40)
     assert torch.allclose(out.depth, D, atol=0.05)
     assert torch.allclose(out.color, torch.full((16, 3), 0.5), atol=0.02)
@@ -95,13 +96,16 @@ def test_render_rays_without_depth_uses_box():
     T = 0.06
     aabb = torch.tensor([[-1.0, 1.0], [-1.0, 1.0], [-1.0, 3.0]])
 
-    def field(p):
-        return torch.clamp((2.0 - p[:, 2]) / T, -1, 1), torch.full((p.shape[0], 3), 0.2)
+    def sdf(p):
+        return torch.clamp((2.0 - p[:, 2]) / T, -1, 1)
+
+    def rgb(p):
+        return torch.full((p.shape[0], 3), 0.2)
 
     o = torch.zeros(4, 3)
     d = torch.cat((torch.zeros(4, 2), torch.ones(4, 1)), -1)
     D = torch.tensor([2.0, 0.0, 2.0, 0.0])
-    out = render_rays(o, d, D, field, 10.0, T, 32, 8, aabb=aabb, perturb=True,
+    out = render_rays(o, d, D, sdf, rgb, 10.0, T, 32, 8, aabb=aabb, perturb=True,
                       generator=torch.Generator().manual_seed(0))
     assert out.z[1].max() <= 3.01 + 1e-5
     assert torch.allclose(out.depth, torch.full((4,), 2.0), atol=0.1)
@@ -112,3 +116,25 @@ def test_sample_pixels_bounds_and_determinism():
     assert v.min() >= 10 and v.max() < 90 and u.min() >= 20 and u.max() < 100
     v2, u2 = sample_pixels(100, 120, 1000, 10, 20, torch.Generator().manual_seed(1))
     assert torch.equal(v, v2) and torch.equal(u, u2)
+
+
+def test_color_cutoff_queries_only_weighted_samples_and_bounds_the_change():
+    T = 0.06
+    queried = []
+
+    def sdf(p):
+        return torch.clamp((2.0 - p[:, 2]) / T, -1, 1)
+
+    def rgb(p):
+        queried.append(p.shape[0])
+        return torch.stack((p[:, 2] / 4, torch.full_like(p[:, 0], 0.5), torch.full_like(p[:, 0], 0.25)), -1)
+
+    o = torch.zeros(16, 3)
+    d = torch.cat((torch.rand(16, 2) * 0.2, torch.ones(16, 1)), -1)
+    D = torch.full((16,), 2.0)
+    full = render_rays(o, d, D, sdf, rgb, 10.0, T, 32, 8, perturb=False)
+    cut = render_rays(o, d, D, sdf, rgb, 10.0, T, 32, 8, perturb=False, color_cutoff=1e-3)
+    assert queried[0] == 16 * 40 and queried[1] < 16 * 40 / 3  # most samples carry no weight
+    skipped = (full.weights <= 1e-3).float() * full.weights
+    assert (full.color - cut.color).abs().max() <= skipped.sum(-1).max() + 1e-6
+    assert torch.equal(full.depth, cut.depth)

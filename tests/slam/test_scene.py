@@ -17,7 +17,7 @@ def test_every_representation_builds_and_renders(rep):
     assert counts["decoders"] == 1329 + 1363 + 1
     o = torch.full((8, 3), 0.5)
     d = torch.tensor([[0.0, 0.0, 1.0]]).expand(8, 3)
-    out = render_rays(o, d, torch.full((8,), 0.3), model.sdf_rgb, model.beta, 0.06, 8, 4, model.aabb)
+    out = render_rays(o, d, torch.full((8,), 0.3), model.sdf, model.rgb, model.beta, 0.06, 8, 4, model.aabb)
     assert out.depth.shape == (8,) and torch.isfinite(out.color).all()
     out.depth.sum().backward()
     assert model.fields["geometry"].levels[1] is not None

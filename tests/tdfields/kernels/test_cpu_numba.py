@@ -178,3 +178,13 @@ def test_fused_composition_matches_einsum(want):
     inputs = [t for t, w in zip((u, v), want) if w]
     for a, b in zip(torch.autograd.grad(ref, inputs, g), torch.autograd.grad(fused, inputs, g)):
         torch.testing.assert_close(b, a)
+
+
+def test_empty_batches():
+    f = tdfields.MultiResolution([tdfields.CP([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2),
+                                  tdfields.SixAxis([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2)])
+    x = torch.zeros(0, 3, requires_grad=True)
+    with kernels.use_backend("numba"):
+        y = f(x)
+        y.sum().backward()
+    assert y.shape == (0, 4) and x.grad.shape == (0, 3)
