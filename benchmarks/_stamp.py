@@ -39,3 +39,15 @@ def stamp_line(info: dict) -> str:
     dev = info.get("gpu", info["device"])
     return (f"Measured {info['date']} with tdfields {info['tdfields_version']}, torch {info['torch_version']}, "
             f"on {info['cpu']} ({info['torch_threads']} threads), device {dev}.")
+
+
+def write_block(doc, name: str, text: str) -> None:
+    """Replace what lies between ``<!-- name:start -->`` and ``<!-- name:end -->`` in the markdown file ``doc``."""
+    from pathlib import Path
+
+    doc = Path(doc)
+    body = doc.read_text()
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    if start not in body or end not in body:
+        raise SystemExit(f"{doc}: markers {start} / {end} not found")
+    doc.write_text(body[: body.index(start) + len(start)] + "\n" + text + "\n" + body[body.index(end):])

@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 import tdfields
 
@@ -23,10 +24,45 @@ CONFIGS = {
     "appearance/lrslam-six_axis-factors": {"kind": "six_axis", "cell_size": [0.24, 0.03], "channels": 32, "rank": 16,
                                            "strategy": "factors"},
 }
+# ESLAM's own tri-plane query (F.grid_sample on [1, C, H, W] planes): the reference the speed targets compare with
+GRID_SAMPLE = {"geometry/eslam-grid_sample": "geometry/eslam-triplane",
+               "appearance/eslam-grid_sample": "appearance/eslam-triplane"}
+
+
+class GridSampleTriPlane(torch.nn.Module):
+    """ESLAM's tri-plane lookup, as its code does it: normalise to [-1, 1] with the enlarged bound, bilinear
+    ``grid_sample`` (align_corners=True, border padding) on each ``[1, C, n_b, n_a]`` plane, sum the three planes
+    of a level, concatenate the levels. Holds the same values as the tdfields TriPlane it is built from."""
+
+    def __init__(self, field: tdfields.MultiResolution):
+        super().__init__()
+        self.register_buffer("aabb", field.levels[0].aabb.clone())
+        self.planes = torch.nn.ParameterList()
+        for level in field.levels:
+            for name in ("xy", "xz", "yz"):
+                # tdfields stores [n_a, n_b, C]; grid_sample wants [1, C, n_b, n_a] (last dim is x of the grid)
+                self.planes.append(torch.nn.Parameter(level.factors[name].detach().permute(2, 1, 0)[None].contiguous()))
+        self.n_levels = len(field.levels)
+
+    def forward(self, points):
+        box = self.aabb
+        p = 2 * (points - box[:, 0]) / (box[:, 1] - box[:, 0]) - 1
+        out = []
+        for level in range(self.n_levels):
+            acc = 0
+            for j, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+                grid = p[:, [a, b]][None, :, None]
+                s = F.grid_sample(self.planes[3 * level + j], grid, mode="bilinear", padding_mode="border",
+                                  align_corners=True)
+                acc = acc + s[0, :, :, 0].T
+            out.append(acc)
+        return torch.cat(out, -1)
 
 
 def build(name, device="cpu"):
     torch.manual_seed(0)
+    if name in GRID_SAMPLE:
+        return GridSampleTriPlane(build(GRID_SAMPLE[name], device)).to(device)
     return tdfields.build({**CONFIGS[name], "aabb": room0_box()}).to(device)
 
 

@@ -1,4 +1,4 @@
-"""Turn a pytest-benchmark JSON of test_field_speed.py into the docs table (medians and LRSLAM/ESLAM ratios).
+"""Turn a pytest-benchmark JSON of test_field_speed.py into the docs table (medians and ratios).
 
     python benchmarks/field_speed_table.py benchmarks/results/field_speed.json --docs
 """
@@ -11,52 +11,72 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PAIRS = {"geometry": ("geometry/lrslam-cp", "geometry/eslam-triplane"),
-         "appearance": ("appearance/lrslam-six_axis", "appearance/eslam-triplane"),
-         "appearance, factor path": ("appearance/lrslam-six_axis-factors", "appearance/eslam-triplane")}
+# (label, numerator case, denominator case); cases are "<config>:<backend>" as in test_field_speed.py
+RATIOS = [
+    ("CP geometry / ESLAM grid_sample tri-plane (target <= 0.25)", "geometry/lrslam-cp:fused",
+     "geometry/eslam-grid_sample:torch"),
+    ("CP geometry / tdfields tri-plane, both fused", "geometry/lrslam-cp:fused", "geometry/eslam-triplane:fused"),
+    ("Six-axis appearance / ESLAM grid_sample tri-plane (target <= 0.5)", "appearance/lrslam-six_axis:fused",
+     "appearance/eslam-grid_sample:torch"),
+    ("Six-axis appearance / tdfields tri-plane, both fused", "appearance/lrslam-six_axis:fused",
+     "appearance/eslam-triplane:fused"),
+    ("Six-axis fused / Six-axis reference", "appearance/lrslam-six_axis:fused", "appearance/lrslam-six_axis:reference"),
+    ("CP fused / CP reference", "geometry/lrslam-cp:fused", "geometry/lrslam-cp:reference"),
+]
 
 
-def table(data: dict) -> str:
+def medians(data: dict) -> dict:
     med = {}
     for b in data["benchmarks"]:
-        test, name = b["name"].split("[", 1)
-        med[(test, name.rstrip("]"))] = b["stats"]["median"]
+        test, case = b["name"].split("[", 1)
+        med[(test, case.rstrip("]"))] = b["stats"]["median"]
+    return med
+
+
+def table(data: dict, version: str) -> str:
+    med = medians(data)
     info = data.get("machine_info", {})
     cpu = info.get("cpu", {}).get("brand_raw", "unknown CPU")
-    lines = [f"Measured {data.get('datetime', '?')[:16]} UTC on {cpu}, {info.get('cpu', {}).get('count', '?')} cores, "
-             f"torch threads as default, device cpu, tdfields {data.get('version', '')}".rstrip(", ") + ".", "",
-             "| quantity | pass | LRSLAM (median ms) | ESLAM tri-plane (median ms) | ratio LRSLAM / ESLAM |",
-             "|---|---|---|---|---|"]
-    for quantity, (ours, theirs) in PAIRS.items():
-        for test, label in (("test_forward", "forward"), ("test_forward_backward", "forward+backward")):
-            a, b = med.get((test, ours)), med.get((test, theirs))
-            if a is None or b is None:
-                continue
-            lines.append(f"| {quantity} ({ours.split('-', 1)[1]} vs tri-plane) | {label} | {a * 1e3:.1f} | "
-                         f"{b * 1e3:.1f} | {a / b:.2f} |")
+    threads = data.get("threads", "?")
+    lines = [f"Measured {data.get('datetime', '?')[:16]} UTC on {cpu}, {threads} thread(s), device cpu, "
+             f"tdfields {version}; medians of pytest-benchmark rounds, 40k uniformly random points in the room0 box.",
+             "", "| field | backend | forward ms | forward+backward ms |", "|---|---|---|---|"]
+    cases = sorted({case for _, case in med})
+    for case in cases:
+        name, backend = case.split(":")
+        f, fb = med.get(("test_forward", case)), med.get(("test_forward_backward", case))
+        lines.append(f"| {name} | {backend} | {'-' if f is None else f'{1e3 * f:.1f}'} | "
+                     f"{'-' if fb is None else f'{1e3 * fb:.1f}'} |")
+    lines += ["", "| ratio | forward | forward+backward |", "|---|---|---|"]
+    for label, a, b in RATIOS:
+        cells = []
+        for test in ("test_forward", "test_forward_backward"):
+            x, y = med.get((test, a)), med.get((test, b))
+            cells.append("-" if x is None or y is None else f"{x / y:.2f}")
+        lines.append(f"| {label} | {cells[0]} | {cells[1]} |")
     return "\n".join(lines)
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("json", type=Path, help="output of pytest --benchmark-json")
+    p.add_argument("--threads", default="?", help="thread count the run used (for the stamp)")
     p.add_argument("--docs", action="store_true", help="write the table into docs/benchmarks.md")
     args = p.parse_args(argv)
     if not args.json.is_file():
         print(f"field_speed_table: error: no such file: {args.json}", file=sys.stderr)
         return 2
     data = json.loads(args.json.read_text())
+    data.setdefault("threads", args.threads)
     sys.path.insert(0, str(ROOT))
     import tdfields
 
-    data["version"] = tdfields.__version__
-    text = table(data)
+    text = table(data, tdfields.__version__)
     print(text)
     if args.docs:
-        doc = ROOT / "docs" / "benchmarks.md"
-        body = doc.read_text()
-        start, end = "<!-- field-speed:start -->", "<!-- field-speed:end -->"
-        doc.write_text(body[: body.index(start) + len(start)] + "\n" + text + "\n" + body[body.index(end):])
+        from _stamp import write_block
+
+        write_block(ROOT / "docs" / "benchmarks.md", "field-speed", text)
     return 0
 
 

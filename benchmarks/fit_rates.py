@@ -3,7 +3,7 @@
 The same problem as tests/tdfields/test_fit_sdf.py (sphere of radius 0.6 m in a 2 m box, 0.1 m cells,
 8 channels, 4,096 points per step, MLP decoder with 32 hidden units), evaluated at several step counts.
 
-    python benchmarks/fit_rates.py --out benchmarks/results/fit_rates.json
+    python benchmarks/fit_rates.py --out benchmarks/results/fit_rates.json --docs
 """
 
 from __future__ import annotations
@@ -54,14 +54,22 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--steps", type=int, nargs="+", default=[50, 100, 200, 400])
     p.add_argument("--out", type=Path)
+    p.add_argument("--docs", action="store_true", help="write the table into docs/tdfields.md")
     args = p.parse_args(argv)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _stamp import stamp, stamp_line, write_block
+
     rows = [run(k, args.steps) for k in tdfields.KINDS]
-    head = "| kind | parameters | " + " | ".join(f"{s} steps" for s in sorted(args.steps)) + " | seconds |"
-    print(head)
-    print("|" + "---|" * (len(args.steps) + 3))
+    lines = [stamp_line(stamp()), "",
+             "| kind | parameters | " + " | ".join(f"{s} steps" for s in sorted(args.steps)) + " | seconds |",
+             "|" + "---|" * (len(args.steps) + 3)]
     for r in rows:
         errs = " | ".join(f"{r['errors_m'][s] * 1000:.1f} mm" for s in sorted(args.steps))
-        print(f"| {r['kind']} | {r['parameters']:,} | {errs} | {r['seconds']:.1f} |")
+        lines.append(f"| {r['kind']} | {r['parameters']:,} | {errs} | {r['seconds']:.1f} |")
+    text = "\n".join(lines)
+    print(text)
+    if args.docs:
+        write_block(Path(__file__).resolve().parents[1] / "docs" / "tdfields.md", "fit-rates", text)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(rows, indent=2))

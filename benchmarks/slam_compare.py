@@ -10,6 +10,10 @@ Usage::
     python benchmarks/slam_compare.py --out benchmarks/results                       # synthetic + TUM excerpt
     python benchmarks/slam_compare.py --sequences synthetic --representations lrslam eslam
     python benchmarks/slam_compare.py --sequences tum/fr1_rpy-cpu=../shared/data/tum_fr1_rpy
+    python benchmarks/slam_compare.py --sequences synthetic --backends auto torch --out benchmarks/results/fused
+
+``--backends`` repeats every run with each tdfields kernel backend (``auto``: the fused kernels; ``torch``: the
+pure-PyTorch reference), for a before/after table of the fused kernels on the same sequence and settings.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 DEFAULT_SEQUENCES = ["synthetic", f"tum/fr1_rpy-cpu={ROOT.parent / 'shared' / 'data' / 'tum_fr1_rpy'}"]
-COLUMNS = ["sequence", "representation", "num_frames", "ate_rmse_cm", "ate_mean_cm", "accuracy_cm", "completion_cm",
+COLUMNS = ["sequence", "representation", "backend", "num_frames", "ate_rmse_cm", "ate_mean_cm", "accuracy_cm", "completion_cm",
            "completion_ratio_pct", "depth_l1_cm", "fpt_s", "geometry", "appearance", "decoders", "total"]
 
 
@@ -33,11 +37,11 @@ def _cm(v):
     return None if v is None else round(100 * v, 3)
 
 
-def row_of(seq: str, rep: str, m: dict) -> dict:
+def row_of(seq: str, rep: str, m: dict, backend: str = "auto") -> dict:
     rec = m.get("reconstruction") or {}
     p = m["parameters"]
     return {
-        "sequence": seq, "representation": rep, "num_frames": m["num_frames"],
+        "sequence": seq, "representation": rep, "backend": backend, "num_frames": m["num_frames"],
         "ate_rmse_cm": _cm(m.get("ate_rmse_m")), "ate_mean_cm": _cm(m.get("ate_mean_m")),
         "accuracy_cm": _cm(rec.get("accuracy_m")), "completion_cm": _cm(rec.get("completion_m")),
         "completion_ratio_pct": None if rec.get("completion_ratio") is None else round(100 * rec["completion_ratio"], 2),
@@ -53,11 +57,14 @@ def main(argv=None) -> int:
     ap.add_argument("--representations", nargs="+", default=["lrslam", "eslam", "cp_cp"])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     ap.add_argument("--no-mesh", action="store_true")
+    ap.add_argument("--backends", nargs="+", default=["auto"], choices=["auto", "torch", "numba"],
+                    help="tdfields kernel backends to run each configuration with (default: auto)")
     ap.add_argument("overrides", nargs="*", metavar="key=value", help="applied to every run")
     args = ap.parse_args(argv)
 
     import tdfields
     from slam.config import load_config
+    from tdfields import kernels
     from slam.system import cpu_name, run_to_folder
 
     out = Path(args.out)
@@ -68,15 +75,19 @@ def main(argv=None) -> int:
         if data and not Path(data).exists():
             print(f"skip {preset}: data not found at {data}", file=sys.stderr)
             continue
-        for rep in args.representations:
-            over = [f"representation={rep}", *args.overrides] + ([f"data.path={data}"] if data else [])
-            cfg = load_config(preset, over)
-            run_dir = out / "runs" / f"{preset.replace('/', '_')}-{rep}"
-            t0 = time.perf_counter()
-            m = run_to_folder(cfg, run_dir, progress=True, mesh=not args.no_mesh)
-            print(f"{preset} {rep}: ATE {m.get('ate_rmse_m')} m, FPT {m['fpt_s']:.2f} s, "
-                  f"{time.perf_counter() - t0:.0f} s wall", file=sys.stderr)
-            rows.append(row_of(preset, rep, m))
+        for backend in args.backends:
+            kernels.set_backend(backend)
+            for rep in args.representations:
+                over = [f"representation={rep}", *args.overrides] + ([f"data.path={data}"] if data else [])
+                cfg = load_config(preset, over)
+                suffix = "" if backend == "auto" else f"-{backend}"
+                run_dir = out / "runs" / f"{preset.replace('/', '_')}-{rep}{suffix}"
+                t0 = time.perf_counter()
+                m = run_to_folder(cfg, run_dir, progress=True, mesh=not args.no_mesh)
+                print(f"{preset} {rep} [{backend}]: ATE {m.get('ate_rmse_m')} m, FPT {m['fpt_s']:.2f} s, "
+                      f"{time.perf_counter() - t0:.0f} s wall", file=sys.stderr)
+                rows.append(row_of(preset, rep, m, backend))
+        kernels.set_backend("auto")
     import torch
 
     stamp = {"date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "version": tdfields.__version__,

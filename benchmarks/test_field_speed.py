@@ -2,37 +2,52 @@
 
     pytest benchmarks/test_field_speed.py --benchmark-enable --benchmark-json benchmarks/results/field_speed.json
 
-Forward+backward takes gradients for both the factors (mapping) and the points (tracking).
+Forward+backward takes gradients for both the factors (mapping) and the points (tracking). Every tdfields kind
+runs with the fused kernels ("fused") and with the pure-PyTorch reference ("reference"); ESLAM's grid_sample
+tri-plane is the baseline the speed targets are stated against. Threads: torch's setting (``--threads`` below).
 """
 
 import pytest
 import torch
 
-from conftest import CONFIGS, build
+from conftest import CONFIGS, GRID_SAMPLE, build
+from tdfields import kernels
+
+CASES = [(name, backend) for name in CONFIGS for backend in ("fused", "reference")
+         if not (name.endswith("-factors") and backend == "reference")]  # 7 s per call: not worth a benchmark
+CASES += [(name, "torch") for name in GRID_SAMPLE]
+BACKEND = {"fused": "auto", "reference": "torch", "torch": "torch"}
 
 
-@pytest.mark.parametrize("name", list(CONFIGS))
-def test_forward(benchmark, name, query_points):
+def _id(case):
+    return f"{case[0]}:{case[1]}"
+
+
+@pytest.mark.parametrize("case", CASES, ids=_id)
+def test_forward(benchmark, case, query_points):
+    name, backend = case
     field = build(name)
     benchmark.group = f"forward {name.split('/')[0]}"
 
     def run():
-        with torch.no_grad():
+        with torch.no_grad(), kernels.use_backend(BACKEND[backend]):
             return field(query_points)
 
     out = benchmark(run)
     assert out.shape == (query_points.shape[0], 64)
 
 
-@pytest.mark.parametrize("name", list(CONFIGS))
-def test_forward_backward(benchmark, name, query_points):
+@pytest.mark.parametrize("case", CASES, ids=_id)
+def test_forward_backward(benchmark, case, query_points):
+    name, backend = case
     field = build(name)
     benchmark.group = f"forward+backward {name.split('/')[0]}"
 
     def run():
         field.zero_grad(set_to_none=True)
         x = query_points.clone().requires_grad_(True)
-        field(x).square().sum().backward()
+        with kernels.use_backend(BACKEND[backend]):
+            field(x).square().sum().backward()
         return x.grad
 
     grad = benchmark(run)
