@@ -317,6 +317,9 @@ def _validate(cfg: Config) -> None:
         raise SlamInputError("mapping.every_frame and mapping.keyframe_every must be >= 1")
     if cfg.mapping.keyframe_selection not in ("overlap", "global"):
         raise SlamInputError("mapping.keyframe_selection must be 'overlap' or 'global'")
+    if not 0.0 <= cfg.rendering.color_cutoff < 1.0:
+        raise SlamInputError(f"rendering.color_cutoff must be in [0, 1) (a compositing weight), "
+                             f"got {cfg.rendering.color_cutoff}")
 
 
 def _alias(over: dict) -> dict:

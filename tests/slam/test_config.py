@@ -58,3 +58,9 @@ def test_yaml_file_preset(tmp_path):
     p.write_text("inherit: tum/fr1_desk\ntracking: {iters: 7}\n")
     cfg = load_config(str(p))
     assert cfg.tracking.iters == 7 and cfg.scene.bound[0] == [-4.6, 2.6]
+
+
+def test_color_cutoff_is_validated():
+    assert load_config("synthetic", ["rendering.color_cutoff=0"]).rendering.color_cutoff == 0.0
+    with pytest.raises(SlamInputError, match="color_cutoff"):
+        load_config("synthetic", ["rendering.color_cutoff=-0.1"])
