@@ -8,7 +8,7 @@ over rank). Everything else (box handling, the query, parameter accounting, resi
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Mapping, Sequence
+from typing import ClassVar, Sequence
 
 import torch
 from torch import nn
@@ -111,18 +111,6 @@ class Field(nn.Module):
         ``k`` rank components, and the terms are summed.
         """
         raise NotImplementedError
-
-    def combine(self, samples: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        """Interpolated factors ``{name: [N, width]}`` -> features ``[N, C]`` (the terms, in plain PyTorch)."""
-        out = None
-        for term in self.terms():
-            prod = samples[term[0]]
-            for name in term[1:]:
-                prod = prod * samples[name]
-            if prod.shape[-1] != self.channels:
-                prod = prod.reshape(prod.shape[0], -1, self.channels).sum(1)
-            out = prod if out is None else out + prod
-        return out
 
     # -- the query -------------------------------------------------------------------------------------------
     @property

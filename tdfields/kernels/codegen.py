@@ -2,10 +2,10 @@
 
 A generic kernel that walks the program's metadata at run time spends most of its time on that bookkeeping
 (measured 3-4x slower than a hand-written CP kernel). Here the structure is baked into straight-line code: the
-number of factors and terms, each factor's axes, level and width, each term's rank, channels and output offset,
-and which gradients backward must produce are compile-time constants, so every inner loop is a fixed-length,
-contiguous channel loop that LLVM vectorises. Grid sizes stay run-time values (read from the arrays' shapes),
-so a resized field reuses its kernel.
+number of factors and terms, each factor's axes, level and width, each term's rank and output offset, the
+dtype, and which gradients backward must produce are compile-time constants, so every inner loop is a contiguous
+channel loop that LLVM vectorises (backward takes its channel counts at run time, see :func:`backward_source`).
+Grid sizes stay run-time values (the ``sizes`` argument), so a resized field reuses its kernel.
 
 Generated functions (all arrays C-contiguous; factors as 2-D ``[rows, width]`` views):
 
