@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union, get_args, get_origin, get_type_hints
@@ -146,6 +147,7 @@ class Config:
     seed: int = 0
     device: str = "cpu"
     threads: int = 0  # 0 = leave torch's default
+    keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.runtime)
     representation: str = "lrslam"
     data: DataConfig = field(default_factory=DataConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
@@ -250,6 +252,10 @@ def parse_overrides(items: list[str] | None) -> dict:
 
 
 # --------------------------------------------------------------------------------------------------- typing
+# YAML 1.1 (PyYAML) reads exponent notation without a dot, "1e-3", as a string
+_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def _coerce(value: Any, tp: Any, key: str) -> Any:
     origin = get_origin(tp)
     if origin is Union:
@@ -272,6 +278,9 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
             raise SlamInputError(f"config key '{key}' must be an integer, got {value!r}")
         return int(value)
     if tp is float:
+        # YAML 1.1 reads exponent notation without a dot ("1e-3") as a string; accept it as the number it spells
+        if isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):
+            return float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise SlamInputError(f"config key '{key}' must be a number, got {value!r}")
         return float(value)

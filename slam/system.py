@@ -24,6 +24,7 @@ from slam.errors import SlamInputError
 from slam.keyframes import Keyframe, KeyframeStore
 from slam.mapper import map_frame
 from slam.pose import constant_velocity, matrix_to_pose, pose_to_matrix
+from slam.runtime import keep_freed_memory, set_threads
 from slam.scene import SceneModel, parameter_counts, scene_aabb
 from slam.tracker import track_frame
 
@@ -100,16 +101,6 @@ def auto_bound(depths: list[torch.Tensor], c2w0: torch.Tensor, percentile: float
     return [[c[a] - r, c[a] + r] for a in range(3)]
 
 
-def set_threads(n: int) -> None:
-    """Use ``n`` CPU threads for torch and tdfields' fused kernels, which follow torch's count (0: defaults).
-
-    On a small shared CPU one thread per process is usually fastest: OpenMP's spinning worker threads otherwise
-    fight with other work over the same cores.
-    """
-    if n > 0:
-        torch.set_num_threads(n)
-
-
 # --------------------------------------------------------------------------------------------------- loop
 @dataclass
 class RunState:
@@ -133,6 +124,8 @@ class SLAM:
         self.device = torch.device(device)
         self.indices = frame_indices(len(dataset), cfg)
         set_threads(cfg.threads)
+        if cfg.keep_freed_memory:
+            keep_freed_memory()
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed)
         self.gen = torch.Generator().manual_seed(cfg.seed)

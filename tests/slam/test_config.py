@@ -64,3 +64,13 @@ def test_color_cutoff_is_validated():
     assert load_config("synthetic", ["rendering.color_cutoff=0"]).rendering.color_cutoff == 0.0
     with pytest.raises(SlamInputError, match="color_cutoff"):
         load_config("synthetic", ["rendering.color_cutoff=-0.1"])
+
+
+def test_exponent_notation_is_a_number():
+    """YAML 1.1 reads '1e-3' (no dot) as a string; a float key takes it as the number, other strings still fail."""
+    assert load_config("synthetic", ["rendering.color_cutoff=1e-3"]).rendering.color_cutoff == 1e-3
+    assert load_config("synthetic", ["mapping.lr_geometry=5E-3"]).mapping.lr_geometry == 5e-3
+    with pytest.raises(SlamInputError, match="mapping.lr_geometry"):
+        load_config("synthetic", ["mapping.lr_geometry=1e"])
+    with pytest.raises(SlamInputError, match="keep_freed_memory"):
+        load_config("synthetic", ["keep_freed_memory=maybe"])
