@@ -17,6 +17,7 @@ import torch
 from slam.config import Config
 from slam.keyframes import KeyframeStore, keyframe_matrices, overlapping_keyframes, select_window
 from slam.losses import LossWeights, total_loss
+from slam.optim import adam
 from slam.pose import pose_to_matrix, standardize_quaternion
 from slam.rendering import pixel_directions, ray_box_exit, render_rays, sample_pixels
 
@@ -96,7 +97,7 @@ def map_frame(
     if bool(free.any()):
         cam = torch.nn.Parameter(poses0[free].clone())
         groups.append({"params": [cam], "lr": mc.joint_opt_cam_lr})
-    opt = torch.optim.Adam(groups)
+    opt = adam(groups)
 
     per_frame = max(mc.pixels // F, 1)
     iters = mc.iters_first if first else mc.iters

@@ -14,6 +14,7 @@ import torch
 
 from slam.config import Config
 from slam.losses import LossWeights, total_loss, tracking_inliers
+from slam.optim import adam
 from slam.pose import pose_to_matrix, standardize_quaternion
 from slam.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
 
@@ -74,7 +75,7 @@ def track_frame(
     T = cfg.scene.truncation
     q = torch.nn.Parameter(init_pose[:4].clone().to(device))
     t = torch.nn.Parameter(init_pose[4:].clone().to(device))
-    opt = torch.optim.Adam([{"params": [q], "lr": tc.lr_r}, {"params": [t], "lr": tc.lr_t}], betas=(0.5, 0.999))
+    opt = adam([{"params": [q], "lr": tc.lr_r}, {"params": [t], "lr": tc.lr_t}], betas=(0.5, 0.999))
     best_loss = float("inf")
     best_pose = None
     message = ""
