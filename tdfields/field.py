@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from tdfields.bounds import as_aabb, contains, grid_shape_for
-from tdfields.interpolation import to_grid_coords
+from tdfields.interpolation import grid_coords
 from tdfields.program import Program, evaluate, single
 
 COMPLEXITIES = ("O(n)", "O(n^2)", "O(n^3)")
@@ -130,11 +130,11 @@ class Field(nn.Module):
         if points.shape[-1] != 3:
             raise ValueError(f"{type(self).__name__}: points must have shape [..., 3], got {tuple(points.shape)}")
         lead = points.shape[:-1]
-        coords = to_grid_coords(points.reshape(-1, 3), self.aabb, self.grid_shape)
+        coords = grid_coords(points.reshape(-1, 3), [self.aabb], [self.grid_shape])[0]
         return self.features_at(coords).reshape(*lead, self.out_dim)
 
     def features_at(self, coords: torch.Tensor) -> torch.Tensor:
-        """Features at continuous grid indices ``[N, 3]`` (see :func:`to_grid_coords`) -> ``[N, C]``."""
+        """Features at continuous grid indices ``[N, 3]`` (see :func:`tdfields.to_grid_coords`) -> ``[N, C]``."""
         program, tensors = self.query_plan(coords.shape[0])
         return evaluate(program, tensors, coords[None])
 

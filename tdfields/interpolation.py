@@ -36,6 +36,27 @@ def to_grid_coords(points: torch.Tensor, aabb: torch.Tensor, shape: Sequence[int
     return torch.minimum(torch.maximum(g, torch.zeros_like(n)), n - 1)
 
 
+def grid_coords(points: torch.Tensor, boxes: Sequence[torch.Tensor], shapes: Sequence[Sequence[int]]) -> torch.Tensor:
+    """:func:`to_grid_coords` for several grids (levels) at once (dispatching).
+
+    One fused pass where :mod:`tdfields.kernels` applies (CPU float32/float64 points with numba), else the
+    reference stacked per level; values agree bit for bit.
+
+    Args:
+        points: ``[N, 3]`` world coordinates in metres (differentiable).
+        boxes: one ``(3, 2)`` box in metres per level.
+        shapes: one ``(n_x, n_y, n_z)`` per level.
+
+    Returns:
+        ``[L, N, 3]`` clamped grid coordinates.
+    """
+    from tdfields import kernels
+
+    if kernels.use_fused(points):
+        return kernels.fused_grid_coords(points, boxes, shapes)
+    return torch.stack([to_grid_coords(points, box, shape) for box, shape in zip(boxes, shapes)])
+
+
 def interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     """Multilinear interpolation of a channels-last grid at continuous indices (dispatching).
 

@@ -9,7 +9,7 @@ from torch import nn
 
 from tdfields.bounds import contains
 from tdfields.field import COMPLEXITIES, Field
-from tdfields.interpolation import to_grid_coords
+from tdfields.interpolation import grid_coords
 from tdfields.program import concat, evaluate
 
 
@@ -68,7 +68,7 @@ class MultiResolution(nn.Module):
             return torch.cat([level(points) for level in self.levels], dim=-1)
         lead = points.shape[:-1]
         flat = points.reshape(-1, 3)
-        coords = torch.stack([to_grid_coords(flat, level.aabb, level.grid_shape) for level in self.levels])
+        coords = grid_coords(flat, [level.aabb for level in self.levels], [level.grid_shape for level in self.levels])
         plans = [level.query_plan(flat.shape[0]) for level in self.levels]
         program = concat([p for p, _ in plans])
         out = evaluate(program, [t for _, tensors in plans for t in tensors], coords)

@@ -293,6 +293,55 @@ def compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
     return torch.einsum("akc,bkc->abc", u.reshape(u.shape[0], rank, -1), v.reshape(v.shape[0], rank, -1))
 
 
+class _FusedGridCoords(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, points, lo, extent, top):
+        from tdfields.kernels.coords import grid_coords_forward
+
+        p = points.detach().contiguous()
+        out = torch.empty(lo.shape[0], p.shape[0], 3, dtype=p.dtype)
+        args = (p.numpy(), lo.numpy(), extent.numpy(), top.numpy(), out.numpy())
+        _run([lambda a=a, b=b: grid_coords_forward(*args, a, b) for a, b in _split(p.shape[0], _parts(p.shape[0]))])
+        ctx.save_for_backward(p, lo, extent, top)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad):
+        from tdfields.kernels.coords import grid_coords_backward
+
+        if not ctx.needs_input_grad[0]:
+            return None, None, None, None
+        p, lo, extent, top = ctx.saved_tensors
+        with torch.no_grad():
+            g = grad.detach().to(p.dtype).contiguous()
+            out = torch.empty_like(p)
+            args = (p.numpy(), lo.numpy(), extent.numpy(), top.numpy(), g.numpy(), out.numpy())
+            _run([lambda a=a, b=b: grid_coords_backward(*args, a, b)
+                  for a, b in _split(p.shape[0], _parts(p.shape[0]))])
+        return _guard_second_order(out), None, None, None
+
+
+def fused_grid_coords(points: torch.Tensor, boxes, shapes) -> torch.Tensor:
+    """Fused equivalent of stacking :func:`tdfields.to_grid_coords` over levels (first derivatives only).
+
+    Args:
+        points: ``[N, 3]`` world metres, float32 or float64 on the CPU (differentiable).
+        boxes: one ``(3, 2)`` box per level, metres.
+        shapes: one ``(n_x, n_y, n_z)`` per level.
+
+    Returns:
+        ``[L, N, 3]`` clamped grid coordinates, dtype of ``points``.
+    """
+    if _numba_module() is None:
+        raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
+    dtype = points.dtype
+    box = torch.stack([b.detach().to(device="cpu", dtype=dtype) for b in boxes])
+    lo = box[:, :, 0].contiguous()
+    extent = (box[:, :, 1] - box[:, :, 0]).contiguous()
+    top = torch.as_tensor([[n - 1 for n in s] for s in shapes], dtype=dtype)
+    return _FusedGridCoords.apply(points, lo, extent, top)
+
+
 def fused_interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     """Fused equivalent of :func:`tdfields.interpolation.interpolate_reference` (first derivatives only).
 
