@@ -4,7 +4,8 @@ Runs the first frames of a sequence to get a realistic map and keyframe window, 
 mapping calls (median of repeats) with wall-clock timers around the stages:
 
 * fields fwd: every ``MultiResolution`` / ``Field`` query (Six-axis plane composition included);
-* fields bwd: the fused kernels' backward (``tdfields.kernels``; on the reference path it stays in "other");
+* fields bwd: the fused kernels' backward (``tdfields.kernels``: queries, plane composition, coordinate
+  transform; on the reference path it stays in "other");
 * decoders fwd: the SDF and RGB MLPs;
 * optimizer: ``Adam.step``;
 * other: everything else (ray generation, sampling, compositing, losses, the decoders' backward, autograd).
@@ -64,6 +65,7 @@ def stage_timers():
     patches = [wrap(tdfields.MultiResolution, "forward", "fields fwd"), wrap(tdfields.Field, "forward", "fields fwd"),
                wrap(kernels._FusedProgram, "backward", "fields bwd", static=True),
                wrap(kernels._FusedCompose, "backward", "fields bwd", static=True),
+               wrap(kernels._FusedGridCoords, "backward", "fields bwd", static=True),
                wrap(tdfields.MLPDecoder, "forward", "decoders fwd"), wrap(torch.optim.Adam, "step", "optimizer")]
     try:
         yield acc
