@@ -125,12 +125,15 @@ def evaluate_reference(program: Program, factors: Sequence[torch.Tensor], coords
 
 
 def evaluate(program: Program, factors: Sequence[torch.Tensor], coords: torch.Tensor) -> torch.Tensor:
-    """Run ``program`` (fused kernel where :func:`tdfields.kernels.use_fused` allows it, else the reference).
+    """Run ``program``: the Triton kernel where :func:`tdfields.kernels.use_triton` allows it, the numba kernel where
+    :func:`tdfields.kernels.use_fused` does, else the reference.
 
     Args and result as :func:`evaluate_reference`; the fused path supports first derivatives only.
     """
     from tdfields import kernels
 
+    if kernels.use_triton(*factors, coords):
+        return kernels.triton_evaluate(program, factors, coords)
     if kernels.use_fused(*factors, coords):
         return kernels.fused_evaluate(program, factors, coords)
     return evaluate_reference(program, factors, coords)

@@ -7,6 +7,9 @@ Backends, chosen with :func:`set_backend` or the ``TDFIELDS_BACKEND`` environmen
   otherwise (CUDA tensors, ``torch.compile`` tracing, numba missing).
 * ``"torch"``: always the reference (also the only path with second derivatives).
 * ``"numba"``: the CPU kernel; an error if numba is missing.
+* ``"triton"``: the Triton kernel for CUDA tensors (opt-in: checked against the reference in Triton's
+  interpreter, not yet timed or compiled on a GPU here); an error if triton is missing. CPU tensors take it only
+  under ``TRITON_INTERPRET=1`` (the tests), and the numba kernel otherwise.
 
 The kernel evaluates a whole :class:`tdfields.program.Program` (all factors, products and rank sums of one or
 several fields) in one pass per point. It supports first derivatives only: a second derivative through it
@@ -24,8 +27,8 @@ import torch
 
 from tdfields.program import Program, single
 
-BACKENDS = ("auto", "torch", "numba")
-_state = {"backend": os.environ.get("TDFIELDS_BACKEND", "auto"), "numba": None}
+BACKENDS = ("auto", "torch", "numba", "triton")
+_state = {"backend": os.environ.get("TDFIELDS_BACKEND", "auto"), "numba": None, "triton": None}
 if _state["backend"] not in BACKENDS:
     raise ValueError(f"TDFIELDS_BACKEND must be one of {BACKENDS}, got {_state['backend']!r}")
 
@@ -47,6 +50,8 @@ def set_backend(name: str) -> None:
         raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")
     if name == "numba" and not numba_available():
         raise RuntimeError("backend 'numba' requested but numba is not importable; pip install numba")
+    if name == "triton" and not triton_available():
+        raise RuntimeError("backend 'triton' requested but triton is not importable; pip install triton")
     _state["backend"] = name
 
 
@@ -82,11 +87,44 @@ def numba_available() -> bool:
     return _numba_module() is not None
 
 
+def _triton_module():
+    if _state["triton"] is None:
+        try:
+            from tdfields.kernels import gpu_triton
+        except Exception:  # ImportError, or a triton build that fails to initialise here
+            _state["triton"] = False
+        else:
+            _state["triton"] = gpu_triton
+    return _state["triton"] or None
+
+
+def triton_available() -> bool:
+    """Whether the Triton kernel can be used (``import triton`` works)."""
+    return _triton_module() is not None
+
+
+def _interpreting() -> bool:
+    return os.environ.get("TRITON_INTERPRET", "") not in ("", "0")
+
+
+def use_triton(*tensors: torch.Tensor) -> bool:
+    """Whether the Triton kernel runs for these tensors: backend ``"triton"``, all float32 or all float64, all on
+    one CUDA device (or all on the CPU under ``TRITON_INTERPRET=1``), not under ``torch.compile`` tracing."""
+    if _state["backend"] != "triton" or torch.compiler.is_compiling() or not tensors:
+        return False
+    dtype, device = tensors[0].dtype, tensors[0].device
+    if dtype not in (torch.float32, torch.float64):
+        return False
+    if device.type != "cuda" and not (device.type == "cpu" and _interpreting()):
+        return False
+    return all(t.dtype == dtype and t.device == device for t in tensors) and triton_available()
+
+
 def use_fused(*tensors: torch.Tensor) -> bool:
     """Whether the fused kernel runs for these tensors: all on the CPU, all float32 or all float64, not under
     ``torch.compile`` tracing, and the backend allows it."""
     backend = _state["backend"]
-    if backend == "torch" or torch.compiler.is_compiling():
+    if backend == "torch" or torch.compiler.is_compiling() or (backend == "triton" and _interpreting()):
         return False
     dtype = tensors[0].dtype if tensors else torch.float32
     for t in tensors:
@@ -94,7 +132,7 @@ def use_fused(*tensors: torch.Tensor) -> bool:
             return False
     if backend == "numba":
         return True
-    return numba_available()
+    return numba_available()  # "auto", and "triton" for CPU tensors (Triton runs on GPUs)
 
 
 def num_threads() -> int:
@@ -244,6 +282,23 @@ def fused_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Ten
     if max(len(t) for t in program.terms) > 3:
         raise ValueError("the fused kernel multiplies at most 3 factors per term; use set_backend('torch')")
     return _FusedProgram.apply(program, coords, *factors)
+
+
+def triton_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Tensor:
+    """Triton equivalent of :func:`tdfields.program.evaluate_reference` (first derivatives only).
+
+    Same arguments and result as :func:`fused_evaluate`; tensors on one CUDA device (or the CPU when
+    interpreting).
+    """
+    module = _triton_module()
+    if module is None:
+        raise RuntimeError("the Triton kernel needs triton; pip install triton, or set_backend('torch')")
+    program.check(factors)
+    if coords.dim() != 3 or coords.shape[0] != program.num_levels or coords.shape[2] != 3:
+        raise ValueError(f"coords must be [{program.num_levels}, N, 3], got {tuple(coords.shape)}")
+    if max(len(t) for t in program.terms) > 3:
+        raise ValueError("the Triton kernel multiplies at most 3 factors per term; use set_backend('torch')")
+    return module.TritonProgram.apply(program, coords, *factors)
 
 
 class _FusedCompose(torch.autograd.Function):

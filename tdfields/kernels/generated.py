@@ -66,7 +66,21 @@ def compose_kernels(rank: int, channels: int, dtype: str) -> ModuleType:
     return _module(("compose", rank, channels, dtype, checked), lambda: compose_source(rank, channels, dtype, checked))
 
 
-def _module(key: tuple, make_source) -> ModuleType:
+def triton_kernel(kind: str, program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...] = (),
+                  want_coords: bool = False):
+    """The Triton ``forward`` or ``backward`` (``kind``) for this program and widths (see
+    :mod:`tdfields.kernels.triton_codegen`). Triton reads ``TRITON_INTERPRET`` when the module is executed, so the
+    key includes it: a test that switches the interpreter on gets its own copy."""
+    from tdfields.kernels import triton_codegen as tc
+
+    interpret = os.environ.get("TRITON_INTERPRET", "") not in ("", "0")
+    key = ("triton", tc.TRITON_KERNEL_VERSION, kind, program, widths, want_factors, want_coords, interpret)
+    if kind == "forward":
+        return _module(key, lambda: tc.forward_source(program, widths), interpret).forward
+    return _module(key, lambda: tc.backward_source(program, widths, want_factors, want_coords), interpret).backward
+
+
+def _module(key: tuple, make_source, salt: object = None) -> ModuleType:
     module = _loaded.get(key)
     if module is not None:
         return module
@@ -74,7 +88,7 @@ def _module(key: tuple, make_source) -> ModuleType:
         module = _loaded.get(key)
         if module is None:
             text = make_source()
-            digest = hashlib.sha1(text.encode()).hexdigest()[:20]
+            digest = hashlib.sha1((text + ("" if salt is None else repr(salt))).encode()).hexdigest()[:20]
             name = f"tdfields_kernel_{digest}"
             path = cache_dir() / f"{name}.py"
             if not path.exists() or path.read_text() != text:
