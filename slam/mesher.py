@@ -53,6 +53,48 @@ class Hull:
         except (QhullError, ValueError):
             self.equations = None
 
+    def x_intervals(self, ys: np.ndarray, zs: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+        """The hull's extent along every grid line parallel to x: ``(lo, hi)`` of shape ``[ny, nz]``.
+
+        A point ``(x, y_j, z_k)`` is inside exactly when ``lo[j, k] <= x <= hi[j, k]`` (same tolerance as
+        :meth:`contains`; ``lo > hi`` where the line misses the hull). The hull is convex, so each facet bounds
+        ``x`` on a whole line at once: ``O(ny nz F)`` work for the grid instead of ``O(nx ny nz F)``. Meshing
+        the synthetic room spent 87 % of its time in :meth:`contains` over every grid point (5.0 of 5.7 s).
+        """
+        ny, nz = len(ys), len(zs)
+        lo = np.full(ny * nz, -np.inf)
+        hi = np.full(ny * nz, np.inf)
+        if self.equations is None:
+            return lo.reshape(ny, nz), hi.reshape(ny, nz)
+        n, d = self.equations[:, :3], self.equations[:, 3]
+        c, s = self.centroid, self.scale
+        yy, zz = np.meshgrid(ys, zs, indexing="ij")
+        py = c[1] + (yy.ravel() - c[1]) / s
+        pz = c[2] + (zz.ravel() - c[2]) / s
+        # n . p + d with p = c + (q - c) / s and q = (t, y, z) is a t + b on each line
+        a = n[:, 0] / s
+        base = n[:, 0] * (c[0] - c[0] / s) + d
+        pos, neg, flat = a > 0, a < 0, a == 0
+        chunk = max(1, (1 << 22) // len(n))
+        for start in range(0, ny * nz, chunk):
+            sl = slice(start, start + chunk)
+            b = py[sl, None] * n[:, 1] + pz[sl, None] * n[:, 2] + base
+            bound = (tol - b) / np.where(flat, 1.0, a)
+            if pos.any():
+                hi[sl] = bound[:, pos].min(1)
+            if neg.any():
+                lo[sl] = bound[:, neg].max(1)
+            if flat.any():
+                missed = (b[:, flat] > tol).any(1)
+                lo[sl][missed], hi[sl][missed] = np.inf, -np.inf
+        return lo.reshape(ny, nz), hi.reshape(ny, nz)
+
+    def contains_grid(self, xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> np.ndarray:
+        """:meth:`contains` for every point of the grid ``xs x ys x zs`` (1-D coordinates) -> ``[nx, ny, nz]``."""
+        lo, hi = self.x_intervals(ys, zs)
+        x = np.asarray(xs)[:, None, None]
+        return (lo[None] <= x) & (x <= hi[None])
+
     def contains(self, points: np.ndarray, chunk: int = 200000) -> np.ndarray:
         if self.equations is None:
             return np.ones(points.shape[0], bool)
@@ -91,12 +133,14 @@ def extract_mesh(scene, bound, resolution: float, batch: int = 500000, hull: Hul
     slab = max(1, batch // (n[1] * n[2]))
     chunk = min(batch, 65536)
     yy, zz = np.meshgrid(axes[1], axes[2], indexing="ij")
+    lines = hull.x_intervals(axes[1], axes[2]) if hull is not None else None
     for s in range(0, n[0], slab):
         xs = axes[0][s:s + slab]
         pts = np.stack(np.broadcast_arrays(xs[:, None, None], yy[None], zz[None]), -1).reshape(-1, 3)
         inside = ((pts >= aabb[:, 0]) & (pts <= aabb[:, 1])).all(1)
-        if hull is not None:
-            inside &= hull.contains(pts)
+        if lines is not None:
+            x = xs[:, None, None]
+            inside &= ((lines[0][None] <= x) & (x <= lines[1][None])).reshape(-1)
         vals = np.full(len(pts), -1.0, np.float32)  # outside the box or the hull: SDF -1 (not queried)
         idx = np.nonzero(inside)[0]
         for c in range(0, len(idx), chunk):
