@@ -22,6 +22,13 @@ RATIOS = [
      "appearance/eslam-triplane:fused"),
     ("Six-axis fused / Six-axis reference", "appearance/lrslam-six_axis:fused", "appearance/lrslam-six_axis:reference"),
     ("CP fused / CP reference", "geometry/lrslam-cp:fused", "geometry/lrslam-cp:reference"),
+    # on a GPU (present only when the run had one)
+    ("CUDA: CP Triton / ESLAM grid_sample tri-plane", "geometry/lrslam-cp:cuda-triton",
+     "geometry/eslam-grid_sample:cuda-torch"),
+    ("CUDA: Six-axis Triton / ESLAM grid_sample tri-plane", "appearance/lrslam-six_axis:cuda-triton",
+     "appearance/eslam-grid_sample:cuda-torch"),
+    ("CUDA: Six-axis Triton / Six-axis reference", "appearance/lrslam-six_axis:cuda-triton",
+     "appearance/lrslam-six_axis:cuda-reference"),
 ]
 
 
@@ -38,7 +45,9 @@ def table(data: dict, version: str) -> str:
     info = data.get("machine_info", {})
     cpu = info.get("cpu", {}).get("brand_raw", "unknown CPU")
     threads = data.get("threads", "?")
-    lines = [f"Measured {data.get('datetime', '?')[:16]} UTC on {cpu}, {threads} thread(s), device cpu, "
+    gpu = any(case.split(":")[1].startswith("cuda") for _, case in med)
+    lines = [f"Measured {data.get('datetime', '?')[:16]} UTC on {cpu}, {threads} thread(s), device cpu"
+             f"{' and ' + data['gpu'] if gpu and data.get('gpu') else (' and cuda' if gpu else '')}, "
              f"tdfields {version}; medians of pytest-benchmark rounds, 40k uniformly random points in the room0 box.",
              "", "| field | backend | forward ms | forward+backward ms |", "|---|---|---|---|"]
     cases = sorted({case for _, case in med})
@@ -49,6 +58,8 @@ def table(data: dict, version: str) -> str:
                      f"{'-' if fb is None else f'{1e3 * fb:.1f}'} |")
     lines += ["", "| ratio | forward | forward+backward |", "|---|---|---|"]
     for label, a, b in RATIOS:
+        if label.startswith("CUDA") and not gpu:
+            continue
         cells = []
         for test in ("test_forward", "test_forward_backward"):
             x, y = med.get((test, a)), med.get((test, b))
@@ -61,6 +72,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("json", type=Path, help="output of pytest --benchmark-json")
     p.add_argument("--threads", default="?", help="thread count the run used (for the stamp)")
+    p.add_argument("--gpu", default="", help="GPU name for the stamp when the run had CUDA cases")
     p.add_argument("--docs", action="store_true", help="write the table into docs/benchmarks.md")
     args = p.parse_args(argv)
     if not args.json.is_file():
@@ -68,6 +80,7 @@ def main(argv=None) -> int:
         return 2
     data = json.loads(args.json.read_text())
     data.setdefault("threads", args.threads)
+    data.setdefault("gpu", args.gpu)
     sys.path.insert(0, str(ROOT))
     import tdfields
 
