@@ -358,12 +358,14 @@ def reconstruction(mesh, gt_mesh_path, system: SLAM) -> dict:
         if cfg.meshing.cull_depth_test:
             depths = [np.asarray(system.ds[i].depth, dtype=np.float32) for i in system.indices]
         gt = seval.cull_mesh(gt, system.gt.numpy(), system.intr, depths=depths, truncation=cfg.scene.truncation)
-    out = dict(seval.reconstruction_metrics(mesh, gt, samples=cfg.meshing.eval_samples, icp=cfg.meshing.eval_icp,
-                                            seed=cfg.seed))
+    out = {}
+    if cfg.meshing.eval_icp:  # one alignment for both metrics
+        mesh, transform = seval.align_mesh(mesh, gt, seed=cfg.seed)
+        out["icp_translation_m"] = float(np.linalg.norm(transform[:3, 3]))
+    out.update(seval.reconstruction_metrics(mesh, gt, samples=cfg.meshing.eval_samples, seed=cfg.seed))
     out.pop("samples", None)
     try:
-        out["depth_l1_m"] = float(seval.depth_l1(mesh, gt, views=cfg.meshing.depth_l1_views, seed=cfg.seed,
-                                                 icp=cfg.meshing.eval_icp))
+        out["depth_l1_m"] = float(seval.depth_l1(mesh, gt, views=cfg.meshing.depth_l1_views, seed=cfg.seed))
     except Exception as exc:  # the metric needs ray casting; never lose a run over it
         log.warning("depth L1 failed: %s", exc)
         out["depth_l1_m"] = None

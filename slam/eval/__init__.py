@@ -7,7 +7,7 @@ as in :mod:`slam.data`. See ``docs/evaluation.md``.
 
 from slam.eval.ate import ATEResult, ate, ate_from_files, umeyama
 from slam.eval.culling import cull_mesh, visible_vertices
-from slam.eval.mesh_metrics import depth_l1, icp_align, load_mesh, reconstruction_metrics, render_depth
+from slam.eval.mesh_metrics import align_mesh, depth_l1, icp_align, load_mesh, reconstruction_metrics, render_depth
 from slam.eval.plots import plot_trajectory
 from slam.eval.trajectory import associate, read_tum_trajectory, write_tum_trajectory
 
@@ -22,6 +22,7 @@ __all__ = [
     "reconstruction_metrics",
     "depth_l1",
     "icp_align",
+    "align_mesh",
     "load_mesh",
     "render_depth",
     "cull_mesh",

@@ -67,12 +67,16 @@ def _run(args) -> int:
                             title=f"{args.trajectory.name}: ATE RMSE {res.rmse * 100:.2f} cm ({args.align})")
             rows.append(("plot", str(args.plot)))
     if args.mesh is not None:
-        from slam.eval.mesh_metrics import depth_l1, load_mesh, reconstruction_metrics
+        import numpy as np
+
+        from slam.eval.mesh_metrics import align_mesh, depth_l1, load_mesh, reconstruction_metrics
 
         rec = load_mesh(args.mesh, "reconstructed mesh")
         gt = load_mesh(args.gt_mesh, "ground-truth mesh")
-        m = reconstruction_metrics(rec, gt, samples=args.samples, threshold=args.threshold, icp=args.icp,
-                                   seed=args.seed)
+        if args.icp:  # one alignment for both metrics
+            rec, transform = align_mesh(rec, gt, seed=args.seed)
+            out["icp_translation_m"] = float(np.linalg.norm(transform[:3, 3]))
+        m = reconstruction_metrics(rec, gt, samples=args.samples, threshold=args.threshold, seed=args.seed)
         out.update({k: m[k] for k in ("accuracy_m", "completion_m", "completion_ratio")})
         rows += [
             ("accuracy", f"{m['accuracy_m'] * 100:8.3f} cm"),
@@ -81,7 +85,7 @@ def _run(args) -> int:
         ]
         if args.depth_views > 0:
             box = (args.depth_box[:3], args.depth_box[3:]) if args.depth_box else None
-            d = depth_l1(rec, gt, views=args.depth_views, seed=args.seed, icp=args.icp, camera_box=box)
+            d = depth_l1(rec, gt, views=args.depth_views, seed=args.seed, camera_box=box)
             out["depth_l1_m"] = d
             rows.append((f"Depth L1 ({args.depth_views} views)", f"{d * 100:8.3f} cm"))
     width = max(len(k) for k, _ in rows)

@@ -13,7 +13,7 @@ import numpy as np
 
 from slam.errors import SlamInputError
 
-__all__ = ["load_mesh", "reconstruction_metrics", "icp_align", "depth_l1", "render_depth", "look_at"]
+__all__ = ["load_mesh", "reconstruction_metrics", "icp_align", "align_mesh", "depth_l1", "render_depth", "look_at"]
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +72,24 @@ def icp_align(source: np.ndarray, target: np.ndarray, max_dist: float = 0.1, ite
         step[:3, 3] = t
         transform = step @ transform
     return transform
+
+
+def align_mesh(rec_mesh, gt_mesh, samples: int = 100_000, seed: int = 0):
+    """The reconstruction rigidly aligned to the ground truth by :func:`icp_align` on ``samples`` area-uniform
+    surface points of each mesh (seeds ``seed`` and ``seed + 1``).
+
+    Align once and pass the result to :func:`reconstruction_metrics` and :func:`depth_l1` with ``icp=False``:
+    each of them aligning on its own ran the same ICP twice (2.3 s each on the synthetic room).
+
+    Returns:
+        ``(aligned copy of the reconstruction, [4, 4] transform applied to it)``.
+    """
+    rec = load_mesh(rec_mesh, "reconstructed mesh")
+    gt = load_mesh(gt_mesh, "ground-truth mesh")
+    transform = icp_align(_samples(rec, samples, seed), _samples(gt, samples, seed + 1))
+    aligned = rec.copy()
+    aligned.apply_transform(transform)
+    return aligned, transform
 
 
 def _samples(mesh, n: int, seed: int) -> np.ndarray:
@@ -184,9 +202,7 @@ def depth_l1(rec_mesh, gt_mesh, views: int = 1000, seed: int = 0, height: int = 
     rec = load_mesh(rec_mesh, "reconstructed mesh")
     gt = load_mesh(gt_mesh, "ground-truth mesh")
     if icp:
-        gt_pts = _samples(gt, 100_000, seed + 1)
-        rec = rec.copy()
-        rec.apply_transform(icp_align(_samples(rec, 100_000, seed), gt_pts))
+        rec, _ = align_mesh(rec, gt, seed=seed)
     rng = np.random.default_rng(seed)
     if camera_box is None:
         lo, hi = gt.bounds

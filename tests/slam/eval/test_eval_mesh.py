@@ -4,7 +4,7 @@ import trimesh
 
 from slam.data import Intrinsics
 from slam.errors import SlamInputError
-from slam.eval import cull_mesh, depth_l1, reconstruction_metrics, render_depth
+from slam.eval import align_mesh, cull_mesh, depth_l1, reconstruction_metrics, render_depth
 from slam.eval.mesh_metrics import look_at
 
 
@@ -57,6 +57,23 @@ def test_icp_removes_small_rigid_misalignment():
     assert plain["accuracy_m"] > floor + 0.01
     assert aligned["accuracy_m"] < floor + 0.001 and aligned["completion_ratio"] == 1.0
     assert aligned["icp_translation_m"] == pytest.approx(np.linalg.norm(np.linalg.inv(t)[:3, 3]), abs=0.003)
+
+
+def test_align_mesh_once_serves_both_metrics():
+    gt = trimesh.creation.box(extents=[2.0, 1.5, 1.0]).subdivide().subdivide()
+    t = np.eye(4)
+    t[:3, :3] = trimesh.transformations.rotation_matrix(np.radians(1.0), [0.3, 0.2, 1.0])[:3, :3]
+    t[:3, 3] = [0.03, -0.02, 0.01]
+    rec = gt.copy()
+    rec.apply_transform(t)
+    aligned, transform = align_mesh(rec, gt, samples=50_000)
+    np.testing.assert_allclose(transform, np.linalg.inv(t), atol=2e-3)
+    np.testing.assert_allclose(rec.vertices, gt.vertices @ t[:3, :3].T + t[:3, 3])  # the input is left alone
+    assert np.abs(aligned.vertices - gt.vertices).max() < 3e-3
+    # depth_l1(icp=True) is depth_l1 of the copy align_mesh returns (same samples, same seed)
+    box = ([-0.2, -0.2, -0.2], [0.2, 0.2, 0.2])
+    kw = dict(views=3, height=40, width=40, focal=30.0, camera_box=box)
+    assert depth_l1(rec, gt, icp=True, **kw) == depth_l1(align_mesh(rec, gt)[0], gt, **kw)
 
 
 def test_render_depth_is_z_depth():
