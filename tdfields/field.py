@@ -135,8 +135,15 @@ class Field(nn.Module):
 
     def features_at(self, coords: torch.Tensor) -> torch.Tensor:
         """Features at continuous grid indices ``[N, 3]`` (see :func:`tdfields.to_grid_coords`) -> ``[N, C]``."""
-        program, tensors = self.query_plan(coords.shape[0])
+        program, tensors, coords = self.plan_query(coords)
         return evaluate(program, tensors, coords[None])
+
+    def plan_query(self, coords: torch.Tensor) -> tuple[Program, list[torch.Tensor], torch.Tensor]:
+        """:meth:`query_plan` for these grid coordinates ``[N, 3]``: ``(program, tensors, coords)``, where a kind
+        may hand back tensors covering only the region the points touch, with the coordinates shifted to match
+        (Six-axis composes sub-planes in mapping). By default the full plan and the coordinates unchanged."""
+        program, tensors = self.query_plan(coords.shape[0])
+        return program, tensors, coords
 
     def query_plan(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
         """The :class:`tdfields.program.Program` and tensors a query of ``num_points`` points evaluates.

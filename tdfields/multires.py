@@ -69,9 +69,10 @@ class MultiResolution(nn.Module):
         lead = points.shape[:-1]
         flat = points.reshape(-1, 3)
         coords = grid_coords(flat, [level.aabb for level in self.levels], [level.grid_shape for level in self.levels])
-        plans = [level.query_plan(flat.shape[0]) for level in self.levels]
-        program = concat([p for p, _ in plans])
-        out = evaluate(program, [t for _, tensors in plans for t in tensors], coords)
+        plans = [level.plan_query(c) for level, c in zip(self.levels, coords)]
+        program = concat([p for p, _, _ in plans])
+        coords = torch.stack([c for _, _, c in plans])
+        out = evaluate(program, [t for _, tensors, _ in plans for t in tensors], coords)
         return out.reshape(*lead, self.out_dim)
 
     def contains(self, points: torch.Tensor) -> torch.Tensor:

@@ -35,6 +35,11 @@ class SixAxis(Field):
       (large batches: mapping), and always when no gradient to the factors is needed (tracking with a frozen
       map, meshing, rendering): the composed planes are then cached and reused until a factor changes.
 
+    Sub-planes: when the planes are composed for a differentiable query (mapping), only the region of each plane
+    inside the points' bounding box (in grid cells) is composed, and the coordinates are shifted to it: the same
+    values (each cell is composed independently), with composition work and plane gradients proportional to the
+    region. On the TUM excerpt a mapping batch touches 32-52 % of each fine plane.
+
     Plane cache: valid while every factor is the same tensor at the same version (autograd's in-place counter,
     which optimizer steps and ``load_state_dict`` advance). Edits through ``.data`` bypass that counter; call
     :meth:`clear_cache` after them.
@@ -94,15 +99,49 @@ class SixAxis(Field):
         self._plane_cache = None
         return super()._apply(fn, *args, **kwargs)
 
-    def use_planes(self, num_points: int) -> bool:
-        """Whether ``strategy`` picks plane composition for a batch of ``num_points``."""
+    def use_planes(self, num_points: int, extent: tuple[int, int, int] | None = None) -> bool:
+        """Whether ``strategy`` picks plane composition for a batch of ``num_points`` whose bounding box spans
+        ``extent`` samples per axis (default: the whole grid)."""
         if self.strategy != "auto":
             return self.strategy == "planes"
         if not self._needs_graph():
             return True
-        n = self.grid_shape
+        n = self.grid_shape if extent is None else extent
         plane_elems = self.channels * (n[0] * n[1] + n[1] * n[2] + n[2] * n[0])
         return plane_elems < num_points * self.rank * self.channels
+
+    def _box(self, coords: torch.Tensor) -> tuple[list[int], list[int]]:
+        """Lowest and highest sample index per axis that interpolation at ``coords [N, 3]`` reads."""
+        if coords.shape[0] == 0:
+            return [0, 0, 0], [1, 1, 1]
+        c = coords.detach()
+        lo = c.min(0).values.floor().tolist()
+        hi = c.max(0).values.ceil().tolist()
+        lows, highs = [], []
+        for a, n in enumerate(self.grid_shape):
+            if not (lo[a] == lo[a] and hi[a] == hi[a]):  # NaN coordinates: keep the whole axis
+                lo[a], hi[a] = 0, n - 1
+            first = min(max(int(lo[a]), 0), n - 2)
+            lows.append(first)
+            highs.append(max(min(int(hi[a]), n - 1), first + 1))
+        return lows, highs
+
+    def plan_query(self, coords: torch.Tensor):
+        if not self._needs_graph() or self.strategy == "factors":
+            program, tensors = self.query_plan(coords.shape[0])
+            return program, tensors, coords
+        lo, hi = self._box(coords)
+        extent = tuple(h - l_ + 1 for l_, h in zip(lo, hi))
+        if not self.use_planes(coords.shape[0], extent):
+            return (*super().query_plan(coords.shape[0]), coords)
+        planes = []
+        for plane, (a, b) in _PLANES.items():
+            u = self.factors[f"{plane}_{_AXIS[a]}"][lo[a]: hi[a] + 1]
+            v = self.factors[f"{plane}_{_AXIS[b]}"][lo[b]: hi[b] + 1]
+            planes.append(compose_plane(u, v, self.rank))
+        program = single(list(_PLANES.values()), _PLANE_PROGRAM_TERMS, [1, 1, 1], self.channels)
+        shift = torch.tensor(lo, dtype=coords.dtype, device=coords.device)
+        return program, planes, coords - shift
 
     def query_plan(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
         if not self.use_planes(num_points):

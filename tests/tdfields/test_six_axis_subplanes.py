@@ -1,0 +1,67 @@
+"""Six-axis mapping queries compose only the part of each plane the points touch."""
+
+import pytest
+import torch
+
+import tdfields
+import tdfields.six_axis as six_axis_module
+from tdfields import kernels
+
+BOX = [[0.0, 2.0], [0.0, 1.0], [0.0, 1.5]]
+
+
+def _field(strategy):
+    torch.manual_seed(0)
+    return tdfields.SixAxis(BOX, grid_shape=(21, 11, 16), channels=4, rank=3, strategy=strategy).double()
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+@pytest.mark.parametrize("region", ["corner", "edge", "one point", "everywhere"])
+def test_subplanes_match_the_factor_path(monkeypatch, backend, region):
+    torch.manual_seed(1)
+    if region == "corner":
+        x = torch.rand(500, 3, dtype=torch.float64) * torch.tensor([0.5, 0.3, 0.4]) + torch.tensor([0.2, 0.1, 0.3])
+    elif region == "edge":  # on the upper faces and beyond: clamped
+        x = torch.rand(300, 3, dtype=torch.float64) * 0.4 + torch.tensor([1.8, 0.8, 1.3])
+    elif region == "one point":
+        x = torch.tensor([[0.77, 0.31, 0.52]], dtype=torch.float64)
+    else:
+        x = torch.rand(800, 3, dtype=torch.float64) * torch.tensor([2.0, 1.0, 1.5])
+    shapes = []
+    compose = six_axis_module.compose_plane
+    monkeypatch.setattr(six_axis_module, "compose_plane", lambda u, v, k: shapes.append((u.shape[0], v.shape[0]))
+                        or compose(u, v, k))
+    results = []
+    for strategy in ("planes", "factors"):
+        f = _field(strategy)
+        xi = x.clone().requires_grad_()
+        with kernels.use_backend(backend):
+            y = f(xi)
+            grads = torch.autograd.grad(y.square().sum(), [xi, *f.parameters()])
+        results.append((y, grads))
+    torch.testing.assert_close(results[0][0], results[1][0])
+    for a, b in zip(results[0][1], results[1][1]):
+        torch.testing.assert_close(a, b)
+    full = {(21, 11), (11, 16), (16, 21)}
+    if region == "everywhere":
+        assert set(shapes) == full
+    else:
+        assert len(shapes) == 3 and all(a * b < 0.3 * 21 * 16 for a, b in shapes)  # a small part of each plane
+
+
+def test_frozen_queries_still_use_the_cached_full_planes():
+    f = _field("auto").requires_grad_(False)
+    x = torch.rand(50, 3, dtype=torch.float64) * 0.2
+    _, tensors, coords = f.plan_query(tdfields.to_grid_coords(x, f.aabb, f.grid_shape))
+    assert [t.shape[:2] for t in tensors] == [(21, 11), (11, 16), (16, 21)]
+    assert tensors[0] is f.composed_planes()[0]
+
+
+def test_nan_and_empty_batches_keep_working():
+    f = _field("planes")
+    with kernels.use_backend("numba"):
+        y = f(torch.zeros(0, 3, dtype=torch.float64, requires_grad=True))
+        assert y.shape == (0, 4)
+        x = torch.tensor([[float("nan"), 0.5, 0.5], [0.5, 0.5, 0.5]], dtype=torch.float64)
+        out = f(x)
+    assert torch.isfinite(out[1]).all()
