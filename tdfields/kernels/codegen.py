@@ -42,22 +42,36 @@ def _corner_setup(f: int, axes: tuple[int, ...], level: int, with_derivatives: b
             f"    i{f}_{a} = 0",
             f"t{f}_{a} = DT(q - i{f}_{a})",
         ]
+    return lines + corner_lines(f, [f"F{f}s{a}" for a in range(nd)], "ONE", with_derivatives)
+
+
+def corner_lines(f: int, sizes: list[str], one: str, with_derivatives: bool, constant=lambda value: value) -> list[str]:
+    """From the lower indices ``i{f}_{a}`` and fractions ``t{f}_{a}`` already in scope: the base row ``b{f}``, the
+    ``2**d`` corner rows ``r{f}_{k}`` (axis 0 the most significant bit of ``k``), their weights ``w{f}_{k}`` and,
+    if asked, the weights' derivatives ``dw{f}_{k}_{a}`` along each axis. Shared by the numba and Triton writers.
+
+    Args:
+        sizes: the source expression of the factor's size along each of its axes.
+        one: the source of the literal 1 in the kernel's dtype.
+        constant: wraps a derivative that is a bare constant (a line factor's +-1), for kernels that need it
+            shaped like the other per-point values.
+    """
+    nd = len(sizes)
+    lines = []
     # row-major strides of the factor's spatial dims, in rows of the [rows, width] view
-    strides = []
-    for a in range(nd):
-        strides.append(" * ".join(f"F{f}s{b}" for b in range(a + 1, nd)) or "1")
+    strides = [" * ".join(sizes[a + 1:]) or "1" for a in range(nd)]
     base = " + ".join(f"i{f}_{a} * {strides[a]}" if strides[a] != "1" else f"i{f}_{a}" for a in range(nd))
     lines.append(f"b{f} = {base}")
     for k in range(1 << nd):
-        bits = [(k >> (nd - 1 - a)) & 1 for a in range(nd)]  # axis 0 is the most significant bit
+        bits = [(k >> (nd - 1 - a)) & 1 for a in range(nd)]
         offset = " + ".join(strides[a] for a in range(nd) if bits[a])
         lines.append(f"r{f}_{k} = b{f}" + (f" + {offset}" if offset else ""))
-        factors = [f"t{f}_{a}" if bits[a] else f"(ONE - t{f}_{a})" for a in range(nd)]
+        factors = [f"t{f}_{a}" if bits[a] else f"({one} - t{f}_{a})" for a in range(nd)]
         lines.append(f"w{f}_{k} = " + " * ".join(factors))
         if with_derivatives:
             for a in range(nd):
-                parts = [("ONE" if bits[b] else "-ONE") if b == a else factors[b] for b in range(nd)]
-                lines.append(f"dw{f}_{k}_{a} = " + " * ".join(parts))
+                parts = [(one if bits[b] else f"-{one}") if b == a else factors[b] for b in range(nd)]
+                lines.append(f"dw{f}_{k}_{a} = " + (" * ".join(parts) if nd > 1 else constant(parts[0])))
     return lines
 
 

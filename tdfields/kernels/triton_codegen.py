@@ -18,7 +18,7 @@ Generated functions (factors as contiguous ``[rows, width]`` tensors, offsets co
 
 from __future__ import annotations
 
-from tdfields.kernels.codegen import _groups
+from tdfields.kernels.codegen import _groups, corner_lines
 from tdfields.program import Program
 
 TRITON_KERNEL_VERSION = 1
@@ -46,21 +46,9 @@ def _corner_setup(f: int, axes: tuple[int, ...], level: int, with_derivatives: b
             f"i{f}_{a} = tl.minimum(tl.maximum(q.to(tl.int64), 0), S{f}_{a} - 2)",
             f"t{f}_{a} = q - i{f}_{a}.to(q.dtype)",
         ]
-    strides = [" * ".join(f"S{f}_{b}" for b in range(a + 1, nd)) or "1" for a in range(nd)]
-    lines.append(f"b{f} = " + " + ".join(f"i{f}_{a} * {strides[a]}" if strides[a] != "1" else f"i{f}_{a}"
-                                          for a in range(nd)))
-    for k in range(1 << nd):
-        bits = [(k >> (nd - 1 - a)) & 1 for a in range(nd)]
-        offset = " + ".join(strides[a] for a in range(nd) if bits[a])
-        lines.append(f"r{f}_{k} = b{f}" + (f" + {offset}" if offset else ""))
-        factors = [f"t{f}_{a}" if bits[a] else f"(1.0 - t{f}_{a})" for a in range(nd)]
-        lines.append(f"w{f}_{k} = " + " * ".join(factors))
-        if with_derivatives:
-            for a in range(nd):
-                parts = [("1.0" if bits[b] else "-1.0") if b == a else factors[b] for b in range(nd)]
-                # a line factor's corner derivative is the constant +-1: keep it a [BLOCK] vector like the rest
-                lines.append(f"dw{f}_{k}_{a} = " + (" * ".join(parts) if nd > 1 else f"{parts[0]} + 0.0 * t{f}_0"))
-    return lines
+    # a line factor's corner derivative is the constant +-1: keep it a [BLOCK] vector like the rest
+    return lines + corner_lines(f, [f"S{f}_{a}" for a in range(nd)], "1.0", with_derivatives,
+                                constant=lambda value: f"{value} + 0.0 * t{f}_0")
 
 
 def _load(f: int, k: int, width: int) -> str:
