@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import importlib
 import os
 
 import numpy as np
@@ -71,15 +72,19 @@ def get_backend() -> str:
     return _state["backend"]
 
 
-def _numba_module():
-    if _state["numba"] is None:
+def _optional(key: str, name: str):
+    """The kernel module ``tdfields.kernels.<name>`` if it imports here, else None (tried once, remembered in
+    ``_state[key]``)."""
+    if _state[key] is None:
         try:
-            from tdfields.kernels import cpu_numba
-        except Exception:  # ImportError, or numba failing to initialise on an odd platform
-            _state["numba"] = False
-        else:
-            _state["numba"] = cpu_numba
-    return _state["numba"] or None
+            _state[key] = importlib.import_module(f"tdfields.kernels.{name}")
+        except Exception:  # ImportError, or the library failing to initialise on an odd platform
+            _state[key] = False
+    return _state[key] or None
+
+
+def _numba_module():
+    return _optional("numba", "cpu_numba")
 
 
 def numba_available() -> bool:
@@ -88,14 +93,7 @@ def numba_available() -> bool:
 
 
 def _triton_module():
-    if _state["triton"] is None:
-        try:
-            from tdfields.kernels import gpu_triton
-        except Exception:  # ImportError, or a triton build that fails to initialise here
-            _state["triton"] = False
-        else:
-            _state["triton"] = gpu_triton
-    return _state["triton"] or None
+    return _optional("triton", "gpu_triton")
 
 
 def triton_available() -> bool:
