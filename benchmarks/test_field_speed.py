@@ -43,12 +43,17 @@ def _id(case):
     return f"{case[0]}:{case[1]}"
 
 
+def _setup(case, query_points):
+    """``(field, points, device)`` for a case: CPU cases share the module's points, CUDA ones get a copy there."""
+    name, backend = case
+    device = _device(backend)
+    return build(name, device), query_points if device == "cpu" else points(device), device
+
+
 @pytest.mark.parametrize("case", CASES, ids=_id)
 def test_forward(benchmark, case, query_points):
     name, backend = case
-    device = _device(backend)
-    field = build(name, device)
-    x = query_points if device == "cpu" else points(device)
+    field, x, device = _setup(case, query_points)
     benchmark.group = f"forward {name.split('/')[0]}"
 
     def run():
@@ -64,9 +69,7 @@ def test_forward(benchmark, case, query_points):
 @pytest.mark.parametrize("case", CASES, ids=_id)
 def test_forward_backward(benchmark, case, query_points):
     name, backend = case
-    device = _device(backend)
-    field = build(name, device)
-    base = query_points if device == "cpu" else points(device)
+    field, base, device = _setup(case, query_points)
     benchmark.group = f"forward+backward {name.split('/')[0]}"
 
     def run():
