@@ -14,6 +14,8 @@ import trimesh
 from scipy.spatial import ConvexHull, QhullError
 from skimage import measure
 
+import tdfields
+
 
 def hull_points(depths: list[torch.Tensor], c2ws: list[torch.Tensor], intrinsics, per_frame: int = 2000,
                 generator: torch.Generator | None = None) -> np.ndarray:
@@ -121,6 +123,11 @@ def extract_mesh(scene, bound, resolution: float, batch: int = 500000, hull: Hul
     Returns:
         Coloured ``trimesh.Trimesh`` in world metres (empty when no zero crossing exists).
     """
+    with tdfields.frozen(scene):  # the map is fixed while meshing: Six-axis composes its planes once
+        return _extract(scene, bound, resolution, batch, hull, device)
+
+
+def _extract(scene, bound, resolution, batch, hull, device) -> trimesh.Trimesh:
     b = np.asarray(torch.as_tensor(bound, dtype=torch.float64).tolist())
     lo = b[:, 0] - 0.05
     hi = b[:, 1] + 0.05

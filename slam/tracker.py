@@ -2,8 +2,9 @@
 
 A fresh Adam (betas 0.5, 0.999) over the quaternion (``lr_r``) and translation (``lr_t``); every iteration draws
 new pixels; the loss at the pose *before* each step is recorded and the best one is returned (best-loss
-selection, no early stopping). The scene's parameters are frozen for the duration, so backward reaches only
-the pose. A non-finite loss ends the optimisation; if no finite loss was seen the caller falls back.
+selection, no early stopping). The scene is held in :func:`tdfields.frozen` for the duration, so backward reaches
+only the pose and the fields may cache what they derive from the map for this call (never across calls). A
+non-finite loss ends the optimisation; if no finite loss was seen the caller falls back.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 
 import torch
 
+import tdfields
 from slam.config import Config
 from slam.losses import LossWeights, total_loss, tracking_inliers
 from slam.optim import adam
@@ -25,25 +27,6 @@ class TrackResult:
     loss: float  # best loss (nan if none was finite)
     ok: bool
     message: str = ""
-
-
-class frozen:
-    """Context manager: ``requires_grad_(False)`` on a module, restored on exit."""
-
-    def __init__(self, module: torch.nn.Module):
-        self.module = module
-        self.flags: list[tuple[torch.nn.Parameter, bool]] = []
-
-    def __enter__(self):
-        self.flags = [(p, p.requires_grad) for p in self.module.parameters()]
-        for p, _ in self.flags:
-            p.requires_grad_(False)
-        return self.module
-
-    def __exit__(self, *exc):
-        for p, flag in self.flags:
-            p.requires_grad_(flag)
-        return False
 
 
 def track_frame(
@@ -79,7 +62,7 @@ def track_frame(
     best_loss = float("inf")
     best_pose = None
     message = ""
-    with frozen(scene):
+    with tdfields.frozen(scene):  # no scene gradients; Six-axis caches its planes for this call only
         for _ in range(tc.iters):
             v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
             v, u = v.to(device), u.to(device)

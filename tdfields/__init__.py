@@ -8,7 +8,8 @@ Every field maps ``[..., 3]`` world coordinates in metres to ``[..., C]`` featur
     print(tdfields.report(f))              # kind, grid, rank, parameters, bytes, O(n)
 
 Kinds: :class:`DenseGrid` (O(n^3)), :class:`TriPlane` and :class:`VectorMatrix` (O(n^2)), :class:`CP` and
-:class:`SixAxis` (O(n)); compositions :class:`MultiResolution` and :class:`Hybrid`; :func:`build` from configs.
+:class:`SixAxis` (O(n)); compositions :class:`MultiResolution` and :class:`Hybrid`; :func:`build` from configs;
+:func:`frozen` for blocks in which the parameters are fixed and fields may cache (tracking, meshing).
 """
 
 from tdfields._version import __version__
@@ -27,6 +28,7 @@ from tdfields.cp import CP
 from tdfields.decoders import MLPDecoder
 from tdfields.dense_grid import DenseGrid
 from tdfields.field import FactorSpec, Field
+from tdfields.frozen import frozen
 from tdfields.hybrid import Hybrid
 from tdfields.interpolation import interpolate, to_grid_coords
 from tdfields.multires import MultiResolution
@@ -53,6 +55,7 @@ __all__ = [
     "HybridConfig",
     "KINDS",
     "build",
+    "frozen",
     "config_from_dict",
     "load_config",
     "report",

@@ -59,6 +59,8 @@ class Field(nn.Module):
     complexity: ClassVar[str] = ""
     has_rank: ClassVar[bool] = False
     default_init_std: ClassVar[float] = 0.01
+    # > 0 inside tdfields.frozen(...): the only time a kind may cache tensors derived from its factors
+    _frozen_depth: int = 0
 
     def __init__(
         self,
@@ -162,6 +164,16 @@ class Field(nn.Module):
     def contains(self, points: torch.Tensor) -> torch.Tensor:
         """``[..., 3]`` world points -> ``[...]`` bool mask, True inside the (closed) box."""
         return contains(self.aabb, points)
+
+    # -- caching (see tdfields.frozen) ------------------------------------------------------------------------
+    @property
+    def is_frozen(self) -> bool:
+        """Whether a :func:`tdfields.frozen` block holds this field (its caches may then live)."""
+        return self._frozen_depth > 0
+
+    def clear_cache(self) -> None:
+        """Drop whatever the kind derived from its factors (nothing, unless the kind caches inside
+        :func:`tdfields.frozen`)."""
 
     # -- accounting ------------------------------------------------------------------------------------------
     def num_parameters(self) -> int:

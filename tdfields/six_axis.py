@@ -32,17 +32,18 @@ class SixAxis(Field):
       per-point work drops ``4k``-fold. The composed planes are temporaries of size
       ``C (n_x n_y + n_y n_z + n_z n_x)``.
     * ``"auto"`` (default): planes when composing them costs less than the per-point work of the factor path
-      (large batches: mapping), and always when no gradient to the factors is needed (tracking with a frozen
-      map, meshing, rendering): the composed planes are then cached and reused until a factor changes.
+      (large batches: mapping), and always inside :func:`tdfields.frozen` (tracking with a frozen map, meshing),
+      where the composed planes are cached for the block.
 
-    Sub-planes: when the planes are composed for a differentiable query (mapping), only the region of each plane
-    inside the points' bounding box (in grid cells) is composed, and the coordinates are shifted to it: the same
-    values (each cell is composed independently), with composition work and plane gradients proportional to the
-    region. On the TUM excerpt a mapping batch touches 32-52 % of each fine plane.
+    Sub-planes: outside a frozen block, only the region of each plane inside the points' bounding box (in grid
+    cells) is composed, and the coordinates are shifted to it: the same values (each cell is composed
+    independently), with composition work and plane gradients proportional to the region. On the TUM excerpt a
+    mapping batch touches 32-52 % of each fine plane.
 
-    Plane cache: valid while every factor is the same tensor at the same version (autograd's in-place counter,
-    which optimizer steps and ``load_state_dict`` advance). Edits through ``.data`` bypass that counter; call
-    :meth:`clear_cache` after them.
+    Plane cache: only inside ``tdfields.frozen(field)`` (or a module holding it), dropped when the block is entered
+    and left. Outside a block every query composes from the factors as they are, so no optimizer (fused Adam
+    writes the factors without advancing their version counters), ``load_state_dict``, ``.data`` edit or resize
+    can make a query read an old map. Inside a block, replaced tensors and version bumps still refresh it.
     """
 
     kind = "six_axis"
@@ -73,12 +74,16 @@ class SixAxis(Field):
     def _needs_graph(self) -> bool:
         return torch.is_grad_enabled() and any(p.requires_grad for p in self.factors.values())
 
+    def _caching(self) -> bool:
+        return self.is_frozen and not self._needs_graph()
+
     def composed_planes(self) -> list[torch.Tensor]:
         """The three composed planes ``xy [n_x, n_y, C]``, ``yz [n_y, n_z, C]``, ``zx [n_z, n_x, C]``.
 
-        Differentiable when a gradient to the factors is needed; otherwise cached (see the class docstring).
+        Differentiable when a gradient to the factors is needed; cached inside :func:`tdfields.frozen`, composed
+        afresh on every call otherwise.
         """
-        if self._needs_graph():
+        if not self._caching():
             return [self.composed_plane(p) for p in _PLANES]
         factors = list(self.factors.values())
         key = [(p, p._version) for p in factors]
@@ -91,7 +96,7 @@ class SixAxis(Field):
         return self._plane_cache[1]
 
     def clear_cache(self) -> None:
-        """Drop the cached composed planes (needed only after edits through ``.data``)."""
+        """Drop the cached composed planes (:func:`tdfields.frozen` does this on entry and exit)."""
         self._plane_cache = None
 
     def _apply(self, fn, *args, **kwargs):
@@ -101,10 +106,10 @@ class SixAxis(Field):
 
     def use_planes(self, num_points: int, extent: tuple[int, int, int] | None = None) -> bool:
         """Whether ``strategy`` picks plane composition for a batch of ``num_points`` whose bounding box spans
-        ``extent`` samples per axis (default: the whole grid)."""
+        ``extent`` samples per axis (default: the whole grid). Always inside a frozen block (cached planes)."""
         if self.strategy != "auto":
             return self.strategy == "planes"
-        if not self._needs_graph():
+        if self._caching():
             return True
         n = self.grid_shape if extent is None else extent
         plane_elems = self.channels * (n[0] * n[1] + n[1] * n[2] + n[2] * n[0])
@@ -127,7 +132,7 @@ class SixAxis(Field):
         return lows, highs
 
     def plan_query(self, coords: torch.Tensor):
-        if not self._needs_graph() or self.strategy == "factors":
+        if self._caching() or self.strategy == "factors":
             program, tensors = self.query_plan(coords.shape[0])
             return program, tensors, coords
         lo, hi = self._box(coords)

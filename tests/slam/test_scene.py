@@ -24,7 +24,7 @@ def test_every_representation_builds_and_renders(rep):
 
 
 def test_tracking_freezes_scene_gradients():
-    from slam.tracker import frozen
+    from tdfields import frozen
 
     cfg = load_config("synthetic", ["bound=[[0,1],[0,1],[0,1]]"])
     model = SceneModel(cfg, scene_aabb(cfg.scene.bound, 0.24))

@@ -50,11 +50,12 @@ def test_subplanes_match_the_factor_path(monkeypatch, backend, region):
 
 
 def test_frozen_queries_still_use_the_cached_full_planes():
-    f = _field("auto").requires_grad_(False)
+    f = _field("auto")
     x = torch.rand(50, 3, dtype=torch.float64) * 0.2
-    _, tensors, coords = f.plan_query(tdfields.to_grid_coords(x, f.aabb, f.grid_shape))
-    assert [t.shape[:2] for t in tensors] == [(21, 11), (11, 16), (16, 21)]
-    assert tensors[0] is f.composed_planes()[0]
+    with tdfields.frozen(f):
+        _, tensors, coords = f.plan_query(tdfields.to_grid_coords(x, f.aabb, f.grid_shape))
+        assert [t.shape[:2] for t in tensors] == [(21, 11), (11, 16), (16, 21)]
+        assert tensors[0] is f.composed_planes()[0]
 
 
 def test_nan_and_empty_batches_keep_working():
