@@ -160,7 +160,7 @@ def main(argv=None) -> int:
     import torch
 
     import tdfields
-    from slam.system import cpu_name
+    from slam.runtime import cpu_name
     from tdfields import kernels
 
     rows = []

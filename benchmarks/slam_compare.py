@@ -1,6 +1,6 @@
 """Side-by-side SLAM comparison: lrslam vs eslam vs CP/CP (and other representations) on the same sequences.
 
-Runs ``slam.system.run_to_folder`` for every (sequence, representation) pair with identical settings and writes
+Runs ``slam.runner.run_to_folder`` for every (sequence, representation) pair with identical settings and writes
 ``slam_compare.json``, ``slam_compare.csv`` and ``slam_compare.md`` (ATE, reconstruction, FPT, parameters),
 stamped with date, library version, CPU and thread count. Parameter counts come from ``tdfields.report`` via
 each run's ``metrics.json``.
@@ -74,7 +74,8 @@ def main(argv=None) -> int:
     import tdfields
     from slam.config import load_config
     from tdfields import kernels
-    from slam.system import cpu_name, run_to_folder
+    from slam.runner import run_to_folder
+    from slam.runtime import cpu_name
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

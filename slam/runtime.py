@@ -1,5 +1,6 @@
-"""Process-wide runtime settings a SLAM run applies once: CPU threads and the C allocator's treatment of big
-tensors. Both are global to the process, so they live here and not in the scene or the fields.
+"""Process-wide runtime settings a SLAM run applies once (CPU threads, the C allocator's treatment of big
+tensors) and what it records of the machine (:func:`cpu_name`). All are global to the process, so they live here
+and not in the scene or the fields.
 """
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ import ctypes
 import ctypes.util
 import logging
 import platform
+from pathlib import Path
 
 import torch
 
@@ -54,3 +56,14 @@ def keep_freed_memory() -> bool:
         return False
     _state["heap_kept"] = ok
     return ok
+
+
+def cpu_name() -> str:
+    """The CPU model (``/proc/cpuinfo``'s model name where it exists), for stamping results."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()

@@ -1,5 +1,5 @@
-"""The SLAM loop: tracking every frame, mapping every ``every_frame`` frames (and the last), keyframes,
-mesh extraction, and the run's outputs.
+"""The SLAM loop: tracking every frame, mapping every ``every_frame`` frames (and the last), keyframes, mesh
+extraction. Writing a run's outputs lives in :mod:`slam.outputs`, a whole run to a folder in :mod:`slam.runner`.
 
 Sequential by design, like ESLAM in practice (its tracker waits for the mapper at every mapped frame).
 Robustness: a frame without valid depth is not tracked or mapped (its pose is the constant-velocity
@@ -9,21 +9,21 @@ stops that mapping call before any update. Each such event is logged and listed 
 
 from __future__ import annotations
 
-import json
 import logging
-import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import torch
 
-from slam.config import Config, save_config
+from slam.config import Config
 from slam.errors import SlamInputError
 from slam.keyframes import Keyframe, KeyframeStore
 from slam.mapper import map_frame
 from slam.pose import constant_velocity, matrix_to_pose, pose_to_matrix
+from slam.observers import FrameRecord, Observer
 from slam.runtime import keep_freed_memory, set_threads
 from slam.scene import SceneModel, parameter_counts, scene_aabb
 from slam.tracker import track_frame
@@ -167,8 +167,8 @@ class SLAM:
         log.warning("frame %d: %s", self.indices[k], what)
         self.state.events.append({"frame": int(self.indices[k]), "event": what})
 
-    def step(self, k: int) -> None:
-        """Process the k-th selected frame (track, then map if scheduled)."""
+    def step(self, k: int) -> FrameRecord:
+        """Process the k-th selected frame (track, then map if scheduled); returns what happened."""
         cfg = self.cfg
         frame = self.ds[self.indices[k]]
         color = torch.as_tensor(frame.color, dtype=torch.float32).to(self.device)
@@ -192,8 +192,11 @@ class SLAM:
                     self._event(k, f"tracking failed ({res.message}): constant-velocity pose used")
                 pose = res.pose
         est.append(pose.cpu())
+        tracked = k > 0 and has_depth
+        mapped = False
         last = k == len(self.indices) - 1
         if has_depth and (k % cfg.mapping.every_frame == 0 or last):
+            mapped = True
             res = map_frame(self.scene, k, color, depth, est[-1], self.intr, self.keyframes, cfg, self.gen,
                             first=(k == 0))
             if not res.ok:
@@ -203,19 +206,27 @@ class SLAM:
             if k % cfg.mapping.keyframe_every == 0:
                 gt = self.gt[k] if self.gt is not None else None
                 self.keyframes.add(Keyframe(k, color.cpu(), depth.cpu(), est[-1].clone(), gt))
+        return FrameRecord(k=k, frame=int(self.indices[k]), color=color, depth=depth,
+                           pose=pose_to_matrix(est[-1]), gt=self.gt[k] if self.gt is not None else None,
+                           tracked=tracked, mapped=mapped)
 
-    def run(self, progress: bool = True) -> RunState:
+    def run(self, progress: bool = True, observers: Sequence[Observer] = ()) -> RunState:
+        """Process every selected frame, with a progress bar (frame, live ATE, frame time) and the observers'
+        ``on_frame`` after each one."""
         from tqdm import tqdm
 
         bar = tqdm(range(len(self.indices)), disable=not progress, unit="frame", dynamic_ncols=True,
                    desc=f"lrslam [{self.cfg.representation}]")
         for k in bar:
             t0 = time.perf_counter()
-            self.step(k)
+            rec = self.step(k)
             dt = time.perf_counter() - t0
             self.state.frame_times.append(dt)
-            ate_cm = self.live_ate() * 100
-            bar.set_postfix_str(f"frame {self.indices[k]}  ATE {ate_cm:.2f} cm  {dt:.2f} s/frame")
+            rec.dt = dt
+            rec.ate_m = self.live_ate()
+            for obs in observers:
+                obs.on_frame(self, rec)
+            bar.set_postfix_str(f"frame {self.indices[k]}  ATE {rec.ate_m * 100:.2f} cm  {dt:.2f} s/frame")
         bar.close()
         return self.state
 
@@ -238,8 +249,17 @@ class SLAM:
         hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
         mesh = extract_mesh(self.scene, self.mc_bound, res, mcfg.batch, hull, self.device)
         if (mcfg.cull if cull is None else cull) and len(mesh.faces):
-            mesh = _cull(mesh, self)
+            mesh = self._cull(mesh)
         return mesh
+
+    def _cull(self, mesh):
+        """Cull with ``slam.eval.cull_mesh`` using every processed frame's estimated pose (and depth if configured)."""
+        from slam.eval import cull_mesh
+
+        depths = None
+        if self.cfg.meshing.cull_depth_test:
+            depths = [np.asarray(self.ds[i].depth, dtype=np.float32) for i in self.indices]
+        return cull_mesh(mesh, self.poses_matrix(), self.intr, depths=depths, truncation=self.cfg.scene.truncation)
 
     def checkpoint_extra(self) -> dict:
         ts = getattr(self.ds, "timestamps", None)
@@ -254,119 +274,3 @@ class SLAM:
             "keyframe_indices": [int(self.indices[kf.index]) for kf in self.keyframes.frames],
             "keyframe_poses": torch.from_numpy(self.keyframe_poses()).float(),
         }
-
-
-def _cull(mesh, slam_run: "SLAM"):
-    """Cull with ``slam.eval.cull_mesh`` using every processed frame's estimated pose (and depth if configured)."""
-    from slam.eval import cull_mesh
-
-    cfg = slam_run.cfg
-    poses = slam_run.poses_matrix()
-    depths = None
-    if cfg.meshing.cull_depth_test:
-        depths = [np.asarray(slam_run.ds[i].depth, dtype=np.float32) for i in slam_run.indices]
-    return cull_mesh(mesh, poses, slam_run.intr, depths=depths, truncation=cfg.scene.truncation)
-
-
-# --------------------------------------------------------------------------------------------------- a run
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def run_to_folder(cfg: Config, out: str | Path, progress: bool = True, mesh: bool = True) -> dict:
-    """Run SLAM and write every output to ``out``; returns the metrics dict (also ``metrics.json``).
-
-    Outputs: ``trajectory.txt`` / ``trajectory_gt.txt`` (TUM format), ``mesh.ply`` (coloured, culled),
-    ``trajectory.png``, ``config.yaml``, ``checkpoint.pt`` (tdfields self-describing checkpoint: config, scene
-    state_dict, poses) and ``metrics.json``.
-    """
-    import tdfields
-    from slam import eval as seval
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    device = resolve_device(cfg.device)
-    ds = load_data(cfg)
-    save_config(cfg, out / "config.yaml")
-    t_start = time.perf_counter()
-    system = SLAM(cfg, ds, device)
-    system.run(progress=progress)
-    t_loop = time.perf_counter() - t_start
-
-    poses = system.poses_matrix()
-    ts_all = getattr(ds, "timestamps", None)
-    ts = np.asarray([float(ts_all[i]) for i in system.indices]) if ts_all is not None else np.arange(len(poses)) / 30.0
-    seval.write_tum_trajectory(out / "trajectory.txt", ts, poses)
-    metrics: dict = {
-        "name": cfg.name,
-        "representation": cfg.representation,
-        "num_frames": len(system.indices),
-        "fpt_s": float(np.mean(system.state.frame_times)),
-        "loop_s": t_loop,
-        "parameters": parameter_counts(system.scene),
-        "device": str(device),
-        "cpu": cpu_name(),
-        "threads": cfg.threads,
-        "version": tdfields.__version__,
-        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "events": system.state.events,
-    }
-    if system.gt is not None:
-        gt = system.gt.numpy()
-        seval.write_tum_trajectory(out / "trajectory_gt.txt", ts, gt)
-        res = seval.ate(poses, gt)
-        metrics.update(ate_rmse_m=res.rmse, ate_mean_m=res.mean, ate_median_m=res.median, ate_max_m=res.max)
-        try:
-            seval.plot_trajectory(poses, gt, out / "trajectory.png")
-        except Exception as exc:  # plotting must not lose a run
-            log.warning("trajectory plot failed: %s", exc)
-    else:
-        metrics.update(ate_rmse_m=None, ate_mean_m=None)
-    tdfields.save(out / "checkpoint.pt", system.scene, config=cfg.to_dict(), extra=system.checkpoint_extra())
-    if mesh:
-        t0 = time.perf_counter()
-        m = system.mesh()
-        metrics["mesh_s"] = time.perf_counter() - t0
-        metrics["mesh_faces"] = int(len(m.faces))
-        m.export(out / "mesh.ply")
-        gt_mesh = getattr(ds, "gt_mesh_path", None)
-        if gt_mesh is not None and len(m.faces):
-            metrics["reconstruction"] = reconstruction(m, gt_mesh, system)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    return metrics
-
-
-def reconstruction(mesh, gt_mesh_path, system: SLAM) -> dict:
-    """Accuracy / completion / completion ratio (5 cm) and Depth L1 against the GT mesh (slam.eval).
-
-    Reference protocol: the GT mesh is culled with the GT poses (same rule and truncation as the
-    reconstruction), the reconstruction is ICP-aligned to it (``meshing.eval_icp``), then both are sampled
-    (``meshing.eval_samples`` points each); Depth L1 over ``meshing.depth_l1_views`` random views.
-    """
-    from slam import eval as seval
-
-    cfg = system.cfg
-    gt = seval.load_mesh(gt_mesh_path, "ground-truth mesh")
-    if system.gt is not None:
-        depths = None
-        if cfg.meshing.cull_depth_test:
-            depths = [np.asarray(system.ds[i].depth, dtype=np.float32) for i in system.indices]
-        gt = seval.cull_mesh(gt, system.gt.numpy(), system.intr, depths=depths, truncation=cfg.scene.truncation)
-    out = {}
-    if cfg.meshing.eval_icp:  # one alignment for both metrics
-        mesh, transform = seval.align_mesh(mesh, gt, seed=cfg.seed)
-        out["icp_translation_m"] = float(np.linalg.norm(transform[:3, 3]))
-    out.update(seval.reconstruction_metrics(mesh, gt, samples=cfg.meshing.eval_samples, seed=cfg.seed))
-    out.pop("samples", None)
-    try:
-        out["depth_l1_m"] = float(seval.depth_l1(mesh, gt, views=cfg.meshing.depth_l1_views, seed=cfg.seed))
-    except Exception as exc:  # the metric needs ray casting; never lose a run over it
-        log.warning("depth L1 failed: %s", exc)
-        out["depth_l1_m"] = None
-    return {k: float(v) if isinstance(v, (int, float, np.floating)) else v for k, v in out.items()}

@@ -36,7 +36,7 @@ def register(subparsers) -> None:
 
 def main(args) -> int:
     from slam.config import load_config
-    from slam.system import run_to_folder
+    from slam.runner import run_to_folder
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     overrides = list(args.overrides)

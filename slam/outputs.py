@@ -1,0 +1,150 @@
+"""A run's outputs: the TUM trajectories, ``metrics.json``, the trajectory plot, the scene checkpoint, the mesh
+and its reconstruction metrics. Every file is written to a temporary name and renamed, so a reader (or a run
+killed while writing) never sees a half-written file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from slam.runtime import cpu_name
+from slam.scene import parameter_counts
+
+log = logging.getLogger("slam")
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def frame_timestamps(system) -> np.ndarray:
+    """``[N]`` seconds of the processed frames (the dataset's timestamps, else 30 Hz from 0)."""
+    ts_all = getattr(system.ds, "timestamps", None)
+    n = len(system.state.est)
+    if ts_all is None:
+        return np.arange(n) / 30.0
+    return np.asarray([float(ts_all[i]) for i in system.indices[:n]])
+
+
+def write_trajectories(system, out: Path) -> None:
+    """``trajectory.txt`` (and ``trajectory_gt.txt`` with ground truth) in TUM format, for the frames done."""
+    from slam import eval as seval
+
+    ts = frame_timestamps(system)
+    poses = system.poses_matrix()
+    tmp = out / ".trajectory.txt.tmp"
+    seval.write_tum_trajectory(tmp, ts, poses)
+    os.replace(tmp, out / "trajectory.txt")
+    if system.gt is not None:
+        tmp = out / ".trajectory_gt.txt.tmp"
+        seval.write_tum_trajectory(tmp, ts, system.gt[: len(poses)].numpy())
+        os.replace(tmp, out / "trajectory_gt.txt")
+
+
+def trajectory_metrics(system, out: Path | None = None, plot: bool = True) -> dict:
+    """Run summary (frames, FPT, parameters, machine, events) and ATE against ground truth when there is one;
+    with ``out`` and ``plot`` also ``trajectory.png``."""
+    import tdfields
+    from slam import eval as seval
+    from slam.errors import SlamInputError
+
+    cfg = system.cfg
+    times = system.state.frame_times
+    metrics: dict = {
+        "name": cfg.name,
+        "representation": cfg.representation,
+        "seed": cfg.seed,
+        "num_frames": len(system.state.est),
+        "fpt_s": float(np.mean(times)) if times else None,
+        "parameters": parameter_counts(system.scene),
+        "device": str(system.device),
+        "cpu": cpu_name(),
+        "threads": cfg.threads,
+        "version": tdfields.__version__,
+        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "events": system.state.events,
+    }
+    metrics.update(ate_rmse_m=None, ate_mean_m=None)
+    if system.gt is not None and len(system.state.est) >= 3:
+        poses = system.poses_matrix()
+        gt = system.gt[: len(poses)].numpy()
+        try:
+            res = seval.ate(poses, gt)
+        except SlamInputError as exc:  # e.g. too few frames with valid ground truth
+            log.warning("ATE not computed: %s", exc)
+        else:
+            metrics.update(ate_rmse_m=res.rmse, ate_mean_m=res.mean, ate_median_m=res.median, ate_max_m=res.max)
+            if out is not None and plot:
+                try:
+                    seval.plot_trajectory(poses, gt, out / "trajectory.png")
+                except Exception as exc:  # plotting must not lose a run
+                    log.warning("trajectory plot failed: %s", exc)
+    return metrics
+
+
+def write_metrics(metrics: dict, out: Path) -> None:
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2, default=str))
+
+
+def save_scene(system, path: Path) -> None:
+    """The scene as a self-describing ``tdfields`` checkpoint (config, state_dict, poses, bounds, keyframes)."""
+    import tdfields
+
+    tmp = path.with_name(f".{path.name}.tmp")
+    tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=system.checkpoint_extra())
+    os.replace(tmp, path)
+
+
+def write_mesh(system, out: Path, metrics: dict):
+    """Extract, cull and write ``mesh.ply``; adds ``mesh_s``, ``mesh_faces`` and (with a GT mesh)
+    ``reconstruction`` to ``metrics``. Returns the mesh."""
+    t0 = time.perf_counter()
+    m = system.mesh()
+    metrics["mesh_s"] = time.perf_counter() - t0
+    metrics["mesh_faces"] = int(len(m.faces))
+    tmp = out / ".mesh.tmp.ply"
+    m.export(tmp)
+    os.replace(tmp, out / "mesh.ply")
+    gt_mesh = getattr(system.ds, "gt_mesh_path", None)
+    if gt_mesh is not None and len(m.faces):
+        metrics["reconstruction"] = reconstruction(m, gt_mesh, system)
+    return m
+
+
+def reconstruction(mesh, gt_mesh_path, system) -> dict:
+    """Accuracy / completion / completion ratio (5 cm) and Depth L1 against the GT mesh (slam.eval).
+
+    Reference protocol: the GT mesh is culled with the GT poses (same rule and truncation as the
+    reconstruction), the reconstruction is ICP-aligned to it (``meshing.eval_icp``), then both are sampled
+    (``meshing.eval_samples`` points each); Depth L1 over ``meshing.depth_l1_views`` random views.
+    """
+    from slam import eval as seval
+
+    cfg = system.cfg
+    gt = seval.load_mesh(gt_mesh_path, "ground-truth mesh")
+    if system.gt is not None:
+        depths = None
+        if cfg.meshing.cull_depth_test:
+            depths = [np.asarray(system.ds[i].depth, dtype=np.float32) for i in system.indices]
+        gt = seval.cull_mesh(gt, system.gt.numpy(), system.intr, depths=depths, truncation=cfg.scene.truncation)
+    out = {}
+    if cfg.meshing.eval_icp:  # one alignment for both metrics
+        mesh, transform = seval.align_mesh(mesh, gt, seed=cfg.seed)
+        out["icp_translation_m"] = float(np.linalg.norm(transform[:3, 3]))
+    out.update(seval.reconstruction_metrics(mesh, gt, samples=cfg.meshing.eval_samples, seed=cfg.seed))
+    out.pop("samples", None)
+    try:
+        out["depth_l1_m"] = float(seval.depth_l1(mesh, gt, views=cfg.meshing.depth_l1_views, seed=cfg.seed))
+    except Exception as exc:  # the metric needs ray casting; never lose a run over it
+        log.warning("depth L1 failed: %s", exc)
+        out["depth_l1_m"] = None
+    return {k: float(v) if isinstance(v, (int, float, np.floating)) else v for k, v in out.items()}
