@@ -1,14 +1,17 @@
-"""Typed SLAM configuration: YAML presets layered base <- dataset <- scene, plus ``key=value`` overrides.
+"""Typed SLAM configuration: YAML presets layered base <- representation <- dataset <- scene, plus ``key=value``
+overrides.
 
 A preset is a name under ``slam/configs`` (``synthetic``, ``replica/room0``, ``tum/fr1_rpy-cpu`` ...) or a path
 to a YAML file. Layering: ``base.yaml`` <- representation block <- the preset's parents <- the preset <- overrides.
 A file's parent is its ``inherit`` key when present, else the folder's dataset file (``tum/x`` inherits ``tum``),
-else ``base``. The ``representation`` key (``lrslam`` default, ``eslam``, ``cp_cp``, ``sa_sa``, ``sa_cp``)
-picks ``configs/representations/<name>.yaml``, which sets each quantity's field kind and rank; cell sizes and
-channels come from the dataset presets, and any explicit key (a preset's or an override's) wins.
+else ``base``. The ``representation`` key (``lrslam`` default, ``eslam``, ``cp_cp``, ``sa_sa``, ``sa_cp``,
+``vm_sa``) picks ``configs/representations/<name>.yaml``, which sets each quantity's field kind and rank; cell
+sizes and channels come from ``base.yaml`` (the same grids for every representation), and any explicit key (a
+preset's or an override's) wins.
 
-Every key is checked against the dataclasses below; an unknown key or file raises
-:class:`slam.errors.SlamInputError` naming it.
+Every key is checked against the dataclasses below, and every numeric key against its range (``num(...)``): an
+unknown key or file, a badly typed or out-of-range value raises :class:`slam.errors.SlamInputError` naming the key,
+the value and what is allowed. Defaults are ESLAM's (eslam-pipeline.md) unless a field's comment says otherwise.
 """
 
 from __future__ import annotations
@@ -23,21 +26,74 @@ from typing import Any, Optional, Union, get_args, get_origin, get_type_hints
 import yaml
 
 from slam.errors import SlamInputError
+from slam.losses import LossWeights
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 REPRESENTATIONS = ("lrslam", "eslam", "cp_cp", "sa_sa", "sa_cp", "vm_sa")
+FIELD_KINDS = ("cp", "dense_grid", "six_axis", "triplane", "vector_matrix")  # tdfields.KINDS
+
+
+# --------------------------------------------------------------------------------------------------- ranges
+@dataclass(frozen=True)
+class Range:
+    """The allowed values of a numeric key: ``lo``/``hi`` bounds (None: unbounded), each closed unless
+    ``*_open``. Lists are checked element by element; ``None`` passes where the key is optional."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def ok(self, v: float) -> bool:
+        if v != v:  # NaN
+            return False
+        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
+            return False
+        if self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi):
+            return False
+        return True
+
+    def __str__(self) -> str:
+        parts = []
+        if self.lo is not None:
+            parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
+        if self.hi is not None:
+            parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
+        return " and ".join(parts) or "any number"
+
+
+def num(default, lo=None, hi=None, lo_open=False, hi_open=False, **kw):
+    """A dataclass field with a numeric range (see :class:`Range`), checked by :func:`load_config`."""
+    meta = {"range": Range(lo, hi, lo_open, hi_open)}
+    if callable(default):
+        return field(default_factory=default, metadata=meta, **kw)
+    return field(default=default, metadata=meta, **kw)
+
+
+def choice(default, options: tuple, **kw):
+    """A dataclass field whose value must be one of ``options``."""
+    return field(default=default, metadata={"choices": tuple(options)}, **kw)
+
+
+COUNT = {"lo": 1}          # iteration and pixel counts, sizes
+POSITIVE = {"lo": 0, "lo_open": True}   # lengths, learning rates, scales
+NONNEG = {"lo": 0}         # weights, margins
+FRACTION = {"lo": 0, "hi": 1}
 
 
 @dataclass
 class DataConfig:
     """Dataset: ``kind`` is passed to ``slam.data.load_dataset`` (``auto``, ``replica``, ``tum``, ``scannet``...);
     ``path`` null means the bundled synthetic sequence. ``options`` are loader options (crop_edge, crop_size,
-    undistort, ...). ``max_frames`` and ``stride`` subsample the sequence."""
+    undistort, ...). ``max_frames`` and ``stride`` subsample the sequence. A frame that cannot be read (missing,
+    truncated, wrong size) is skipped and listed in ``events``; more than ``max_bad_fraction`` of the frames
+    read so far being bad stops the run with an error (after its outputs are written)."""
 
     kind: str = "auto"
     path: Optional[str] = None
-    max_frames: Optional[int] = None
-    stride: int = 1
+    max_frames: Optional[int] = num(None, **COUNT)
+    stride: int = num(1, **COUNT)
+    max_bad_fraction: float = num(0.1, **FRACTION)
     options: dict = field(default_factory=dict)
 
 
@@ -46,11 +102,11 @@ class FieldSpec:
     """One quantity's field: ``kind`` (tdfields kind), ``cell_sizes`` per level (coarse, fine) in metres,
     ``rank`` (cp / six_axis / vector_matrix), ``channels`` per level, ``init_std``."""
 
-    kind: str = "cp"
-    cell_sizes: list = field(default_factory=lambda: [0.24, 0.06])
-    rank: int = 2
-    channels: int = 32
-    init_std: Optional[float] = None  # null: the kind's tdfields default
+    kind: str = choice("cp", FIELD_KINDS)
+    cell_sizes: list = num(lambda: [0.24, 0.06], **POSITIVE)
+    rank: int = num(2, **COUNT)
+    channels: int = num(32, **COUNT)
+    init_std: Optional[float] = num(None, **POSITIVE)  # null: the kind's tdfields default
 
 
 @dataclass
@@ -60,23 +116,23 @@ class SceneConfig:
 
     bound: Any = "auto"
     marching_cubes_bound: Any = None
-    bound_dividable: float = 0.24
-    bound_auto_frames: int = 10
-    bound_auto_margin: float = 1.0
-    bound_auto_percentile: float = 99.0
-    truncation: float = 0.06
+    bound_dividable: float = num(0.24, **POSITIVE)
+    bound_auto_frames: int = num(10, **COUNT)
+    bound_auto_margin: float = num(1.0, **NONNEG)
+    bound_auto_percentile: float = num(99.0, lo=0, hi=100, lo_open=True)
+    truncation: float = num(0.06, **POSITIVE)
     learnable_beta: bool = True
-    beta_init: float = 10.0
-    decoder_hidden: int = 16
+    beta_init: float = num(10.0, **POSITIVE)
+    decoder_hidden: int = num(16, **COUNT)
 
 
-@dataclass
-class LossWeightsConfig:
-    fs: float = 10.0
-    center: float = 200.0
-    tail: float = 50.0
-    depth: float = 1.0
-    color: float = 5.0
+def _weights(fs, center, tail, depth, color):
+    return lambda: LossWeights(fs=fs, center=center, tail=tail, depth=depth, color=color)
+
+
+# the one definition of ESLAM's loss weights (eslam-pipeline.md §3); LossWeights itself lives with the losses
+TRACKING_WEIGHTS = _weights(10.0, 200.0, 50.0, 1.0, 5.0)
+MAPPING_WEIGHTS = _weights(5.0, 200.0, 10.0, 0.1, 5.0)
 
 
 @dataclass
@@ -85,58 +141,65 @@ class RenderingConfig:
     ``color_cutoff``: samples whose compositing weight is at most this skip the colour query (0: every sample,
     as ESLAM)."""
 
-    n_stratified: int = 32
-    n_importance: int = 8
+    n_stratified: int = num(32, lo=2)
+    n_importance: int = num(8, **NONNEG)
     perturb: bool = True
-    color_cutoff: float = 0.0
+    color_cutoff: float = num(0.0, lo=0, hi=1, hi_open=True)
 
 
 @dataclass
 class TrackingConfig:
-    iters: int = 8
-    pixels: int = 2000
-    lr_t: float = 0.001
-    lr_r: float = 0.001
-    ignore_edge: list = field(default_factory=lambda: [75, 75])
+    iters: int = num(8, **COUNT)
+    pixels: int = num(2000, lo=10)
+    lr_t: float = num(0.001, **POSITIVE)
+    lr_r: float = num(0.001, **POSITIVE)
+    ignore_edge: list = num(lambda: [75, 75], **NONNEG)
     const_speed: bool = True
-    outlier_factor: float = 10.0
-    weights: LossWeightsConfig = field(default_factory=LossWeightsConfig)
+    outlier_factor: float = num(10.0, **POSITIVE)
+    weights: LossWeights = field(default_factory=TRACKING_WEIGHTS)
 
 
 @dataclass
 class MappingConfig:
-    every_frame: int = 4
-    keyframe_every: int = 4
-    iters: int = 15
-    iters_first: int = 1000
-    lr_first_factor: float = 5.0
-    pixels: int = 4000
-    lr_decoders: float = 0.001
-    lr_geometry: float = 0.005
-    lr_appearance: float = 0.005
-    window_size: int = 20
-    keyframe_selection: str = "overlap"
-    overlap_pixels: int = 50
-    overlap_samples: int = 8
+    every_frame: int = num(4, **COUNT)
+    keyframe_every: int = num(4, **COUNT)
+    iters: int = num(15, **COUNT)
+    iters_first: int = num(1000, **COUNT)
+    lr_first_factor: float = num(5.0, **POSITIVE)
+    pixels: int = num(4000, **COUNT)
+    lr_decoders: float = num(0.001, **POSITIVE)
+    lr_geometry: float = num(0.005, **POSITIVE)
+    lr_appearance: float = num(0.005, **POSITIVE)
+    window_size: int = num(20, **COUNT)
+    keyframe_selection: str = choice("overlap", ("overlap", "global"))
+    overlap_pixels: int = num(50, **COUNT)
+    overlap_samples: int = num(8, lo=2)
     joint_opt: bool = True
-    joint_opt_cam_lr: float = 0.001
-    ba_min_keyframes: int = 4
-    weights: LossWeightsConfig = field(
-        default_factory=lambda: LossWeightsConfig(fs=5.0, center=200.0, tail=10.0, depth=0.1, color=5.0)
-    )
+    joint_opt_cam_lr: float = num(0.001, **POSITIVE)
+    ba_min_keyframes: int = num(4, **NONNEG)
+    weights: LossWeights = field(default_factory=MAPPING_WEIGHTS)
 
 
 @dataclass
 class MeshingConfig:
-    resolution: float = 0.01
-    batch: int = 500000
-    hull_scale: float = 1.02
-    hull_points_per_frame: int = 2000
+    """Mesh extraction: grid ``resolution`` (metres), points per SDF ``batch``, the visibility hull and culling."""
+
+    resolution: float = num(0.01, **POSITIVE)
+    batch: int = num(500000, **COUNT)
+    hull_scale: float = num(1.02, **POSITIVE)
+    hull_points_per_frame: int = num(2000, **COUNT)
     cull: bool = True
     cull_depth_test: bool = True
-    eval_samples: int = 200000
-    eval_icp: bool = True
-    depth_l1_views: int = 1000
+
+
+@dataclass
+class EvaluationConfig:
+    """Reconstruction metrics against a ground-truth mesh: points sampled per mesh, ICP alignment first, and the
+    number of random views of Depth L1 (0: skip it)."""
+
+    samples: int = num(200000, **COUNT)
+    icp: bool = True
+    depth_l1_views: int = num(1000, **NONNEG)
 
 
 @dataclass
@@ -144,11 +207,11 @@ class Config:
     """The resolved configuration (written as ``config.yaml`` next to a run's outputs)."""
 
     name: str = "custom"
-    seed: int = 0
+    seed: int = num(0, **NONNEG)
     device: str = "cpu"
-    threads: int = 0  # 0 = leave torch's default
+    threads: int = num(0, **NONNEG)  # 0 = leave torch's default
     keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.runtime)
-    representation: str = "lrslam"
+    representation: str = choice("lrslam", REPRESENTATIONS)
     data: DataConfig = field(default_factory=DataConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
     geometry: FieldSpec = field(default_factory=FieldSpec)
@@ -159,6 +222,7 @@ class Config:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     meshing: MeshingConfig = field(default_factory=MeshingConfig)
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -299,36 +363,114 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     return value
 
 
+# keys that moved: old dotted key -> new dotted key (a clear error instead of "unknown key")
+MOVED = {
+    "meshing.eval_samples": "evaluation.samples",
+    "meshing.eval_icp": "evaluation.icp",
+    "meshing.depth_l1_views": "evaluation.depth_l1_views",
+}
+
+
+# classes defined outside this module whose every field shares one range
+_CLASS_RANGES = {LossWeights: Range(**NONNEG)}
+
+
+def _check_value(key: str, value: Any, meta, default_range: Range | None = None) -> None:
+    rng: Range | None = meta.get("range", default_range)
+    choices = meta.get("choices")
+    if choices is not None and value not in choices:
+        raise SlamInputError(f"config key '{key}' = {value!r} is not allowed; choose from {', '.join(map(str, choices))}")
+    if rng is None or value is None:
+        return
+    for v in value if isinstance(value, list) else [value]:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise SlamInputError(f"config key '{key}' must hold numbers, got {value!r}")
+        if not rng.ok(float(v)):
+            raise SlamInputError(f"config key '{key}' = {value!r} is out of range: must be {rng}")
+
+
 def _build(cls, data: dict, prefix: str = ""):
     hints = get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = [k for k in data if k not in names]
-    if unknown:
-        raise SlamInputError(
-            f"unknown config key '{prefix}{unknown[0]}'; valid keys here: {', '.join(sorted(names))}"
-        )
-    kwargs = {k: _coerce(v, hints[k], prefix + k) for k, v in data.items()}
+    fields_ = {f.name: f for f in dataclasses.fields(cls)}
+    for k in data:
+        if k not in fields_:
+            moved = MOVED.get(prefix + k)
+            if moved:
+                raise SlamInputError(f"config key '{prefix}{k}' is now '{moved}'")
+            raise SlamInputError(f"unknown config key '{prefix}{k}'; valid keys here: {', '.join(sorted(fields_))}")
+    kwargs = {}
+    for k, v in data.items():
+        kwargs[k] = _coerce(v, hints[k], prefix + k)
+        _check_value(prefix + k, kwargs[k], fields_[k].metadata, _CLASS_RANGES.get(cls))
     return cls(**kwargs)
 
 
+def _upgraded(data: dict) -> dict:
+    """``data`` with every key of :data:`MOVED` put where it lives now (configs written by older versions)."""
+    out = copy.deepcopy(data)
+    for old, new in MOVED.items():
+        *path, leaf = old.split(".")
+        node = out
+        for part in path:
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict) and leaf in node:
+            value = node.pop(leaf)
+            *npath, nleaf = new.split(".")
+            target = out
+            for part in npath:
+                target = target.setdefault(part, {})
+            target.setdefault(nleaf, value)
+    return out
+
+
+def config_from_dict(data: dict, upgrade: bool = False) -> Config:
+    """A validated :class:`Config` from a plain dict (e.g. ``config.yaml`` of a run or a checkpoint's config).
+
+    Args:
+        upgrade: first move keys that older versions wrote elsewhere (:data:`MOVED`); for configs this library
+            wrote itself (checkpoints, run folders), not for a user's YAML, which gets the error naming the new key.
+
+    Raises:
+        SlamInputError: an unknown key, a badly typed or out-of-range value.
+    """
+    if not isinstance(data, dict):
+        raise SlamInputError(f"a config must be a mapping of keys, got {type(data).__name__}")
+    if upgrade:
+        data = _upgraded(data)
+    cfg = _build(Config, data)
+    _validate(cfg)
+    return cfg
+
+
 def _validate(cfg: Config) -> None:
+    """Checks across keys (each key's own range is checked as it is read)."""
     if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
         raise SlamInputError(f"device must be cpu or cuda, got '{cfg.device}'")
     for label, spec in (("geometry", cfg.geometry), ("appearance", cfg.appearance)):
-        if not spec.cell_sizes or any(not (float(c) > 0) for c in spec.cell_sizes):
-            raise SlamInputError(f"{label}.cell_sizes must be a non-empty list of positive metres")
-        if spec.rank < 1 or spec.channels < 1:
-            raise SlamInputError(f"{label}.rank and {label}.channels must be positive")
-    b = cfg.scene.bound
-    if b != "auto" and not (isinstance(b, list) and len(b) == 3 and all(isinstance(r, list) and len(r) == 2 for r in b)):
-        raise SlamInputError(f"scene.bound must be 'auto' or [[x0,x1],[y0,y1],[z0,z1]], got {b!r}")
-    if cfg.mapping.every_frame < 1 or cfg.mapping.keyframe_every < 1:
-        raise SlamInputError("mapping.every_frame and mapping.keyframe_every must be >= 1")
-    if cfg.mapping.keyframe_selection not in ("overlap", "global"):
-        raise SlamInputError("mapping.keyframe_selection must be 'overlap' or 'global'")
-    if not 0.0 <= cfg.rendering.color_cutoff < 1.0:
-        raise SlamInputError(f"rendering.color_cutoff must be in [0, 1) (a compositing weight), "
-                             f"got {cfg.rendering.color_cutoff}")
+        if not spec.cell_sizes:
+            raise SlamInputError(f"config key '{label}.cell_sizes' must be a non-empty list of positive metres")
+    for key in ("bound", "marching_cubes_bound"):
+        b = getattr(cfg.scene, key)
+        if b is None and key == "marching_cubes_bound" or b == "auto" and key == "bound":
+            continue
+        ok = isinstance(b, list) and len(b) == 3 and all(
+            isinstance(r, list) and len(r) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                        for v in r) and r[0] < r[1] for r in b)
+        if not ok:
+            allowed = "'auto' or " if key == "bound" else "null or "
+            raise SlamInputError(f"config key 'scene.{key}' must be {allowed}[[x0,x1],[y0,y1],[z0,z1]] with "
+                                 f"x0 < x1 (metres), got {b!r}")
+    if len(cfg.tracking.ignore_edge) != 2:
+        raise SlamInputError(f"config key 'tracking.ignore_edge' must be [rows, columns], got {cfg.tracking.ignore_edge!r}")
+
+
+def _representation(layers: list[dict]) -> str:
+    rep = "lrslam"
+    for layer in layers:
+        rep = layer.get("representation", rep)
+    if rep not in REPRESENTATIONS:
+        raise SlamInputError(f"unknown representation '{rep}'; choose from {', '.join(REPRESENTATIONS)}")
+    return rep
 
 
 def _alias(over: dict) -> dict:
@@ -343,29 +485,23 @@ def _alias(over: dict) -> dict:
 def load_config(preset: str | None = "synthetic", overrides: list[str] | dict | None = None) -> Config:
     """Resolve a preset (name or YAML path) plus overrides into a validated :class:`Config`.
 
+    Layers, each overriding the one before: ``base.yaml``, the representation block the layers name
+    (``representations/<name>.yaml``), the preset's parents, the preset, the overrides.
+
     Raises:
-        SlamInputError: unknown preset, file, key, representation, or a badly typed value.
+        SlamInputError: unknown preset, file, key, representation, or a badly typed / out-of-range value.
     """
     preset = preset or "synthetic"
     base = _read_yaml(CONFIG_DIR / "base.yaml", "base config")
-    chain = _preset_chain(preset)
     over = overrides if isinstance(overrides, dict) else parse_overrides(overrides)
-    over = _alias(over)
-    merged = base
-    for layer in chain + [over]:
-        merged = _deep_merge(merged, layer)
-    rep = merged.get("representation", "lrslam")
-    if rep not in REPRESENTATIONS:
-        raise SlamInputError(f"unknown representation '{rep}'; choose from {', '.join(REPRESENTATIONS)}")
-    rep_block = _read_yaml(CONFIG_DIR / "representations" / f"{rep}.yaml", "representation block")
-    merged = _deep_merge(base, rep_block)
-    for layer in chain + [over]:
+    layers = _preset_chain(preset) + [_alias(over)]
+    rep = _representation([base] + layers)
+    merged = _deep_merge(base, _read_yaml(CONFIG_DIR / "representations" / f"{rep}.yaml", "representation block"))
+    for layer in layers:
         merged = _deep_merge(merged, layer)
     if "name" not in over:
         merged["name"] = Path(preset).stem if preset.endswith((".yaml", ".yml")) else preset
-    cfg = _build(Config, merged)
-    _validate(cfg)
-    return cfg
+    return config_from_dict(merged)
 
 
 def save_config(cfg: Config, path: str | Path) -> None:

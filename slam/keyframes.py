@@ -11,13 +11,13 @@ from slam.pose import pose_to_matrix
 
 @dataclass
 class Keyframe:
-    """One stored keyframe: ``color [H, W, 3]``, ``depth [H, W]`` (metres), poses as ``[7]`` (q, t) c2w."""
+    """One stored keyframe: ``color [H, W, 3]``, ``depth [H, W]`` (metres), its estimated pose as ``[7]`` (q, t)
+    camera-to-world (refined by BA)."""
 
     index: int
     color: torch.Tensor
     depth: torch.Tensor
-    pose: torch.Tensor  # estimated, refined by BA
-    gt_pose: torch.Tensor | None = None
+    pose: torch.Tensor
 
 
 @dataclass

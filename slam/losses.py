@@ -20,17 +20,14 @@ import torch
 
 @dataclass
 class LossWeights:
-    """Weights of the five terms: free space, centre, tail, depth, colour."""
+    """Weights of the five terms: free space, centre, tail, depth, colour (ESLAM's values for tracking and mapping:
+    ``slam.config.TRACKING_WEIGHTS`` / ``MAPPING_WEIGHTS``, the config keys ``tracking.weights`` / ``mapping.weights``)."""
 
     fs: float
     center: float
     tail: float
     depth: float
     color: float
-
-
-TRACKING_WEIGHTS = LossWeights(fs=10.0, center=200.0, tail=50.0, depth=1.0, color=5.0)
-MAPPING_WEIGHTS = LossWeights(fs=5.0, center=200.0, tail=10.0, depth=0.1, color=5.0)
 
 
 def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

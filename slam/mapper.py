@@ -16,10 +16,10 @@ import torch
 
 from slam.config import Config
 from slam.keyframes import KeyframeStore, keyframe_matrices, overlapping_keyframes, select_window
-from slam.losses import LossWeights, total_loss
+from slam.losses import total_loss
 from slam.optim import adam
 from slam.pose import pose_to_matrix, standardize_quaternion
-from slam.rendering import pixel_directions, ray_box_exit, render_rays, sample_pixels
+from slam.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
 
 
 @dataclass
@@ -63,7 +63,7 @@ def map_frame(
     device = depth.device
     H, W = depth.shape
     T = cfg.scene.truncation
-    weights = LossWeights(**vars(mc.weights))
+    weights = mc.weights
 
     # ---- window
     window: list[int] = []
@@ -117,9 +117,7 @@ def map_frame(
         C = colors[fidx, v, u]
         dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
                                     intrinsics.cy)
-        R_all = c2w[fidx]
-        dirs = (R_all[:, :3, :3] @ dirs_cam[..., None])[..., 0]
-        origins = R_all[:, :3, 3]
+        origins, dirs = camera_rays(c2w[fidx], dirs_cam)
         keep = ray_box_exit(origins, dirs, scene.aabb) >= D
         if int(keep.sum()) == 0:
             break

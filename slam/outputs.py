@@ -124,8 +124,8 @@ def reconstruction(mesh, gt_mesh_path, system) -> dict:
     """Accuracy / completion / completion ratio (5 cm) and Depth L1 against the GT mesh (slam.eval).
 
     Reference protocol: the GT mesh is culled with the GT poses (same rule and truncation as the
-    reconstruction), the reconstruction is ICP-aligned to it (``meshing.eval_icp``), then both are sampled
-    (``meshing.eval_samples`` points each); Depth L1 over ``meshing.depth_l1_views`` random views.
+    reconstruction), the reconstruction is ICP-aligned to it (``evaluation.icp``), then both are sampled
+    (``evaluation.samples`` points each); Depth L1 over ``evaluation.depth_l1_views`` random views.
     """
     from slam import eval as seval
 
@@ -137,13 +137,16 @@ def reconstruction(mesh, gt_mesh_path, system) -> dict:
             depths = [np.asarray(system.ds[i].depth, dtype=np.float32) for i in system.indices]
         gt = seval.cull_mesh(gt, system.gt.numpy(), system.intr, depths=depths, truncation=cfg.scene.truncation)
     out = {}
-    if cfg.meshing.eval_icp:  # one alignment for both metrics
+    if cfg.evaluation.icp:  # one alignment for both metrics
         mesh, transform = seval.align_mesh(mesh, gt, seed=cfg.seed)
         out["icp_translation_m"] = float(np.linalg.norm(transform[:3, 3]))
-    out.update(seval.reconstruction_metrics(mesh, gt, samples=cfg.meshing.eval_samples, seed=cfg.seed))
+    out.update(seval.reconstruction_metrics(mesh, gt, samples=cfg.evaluation.samples, seed=cfg.seed))
     out.pop("samples", None)
+    if cfg.evaluation.depth_l1_views == 0:
+        out["depth_l1_m"] = None
+        return {k: float(v) if isinstance(v, (int, float, np.floating)) else v for k, v in out.items()}
     try:
-        out["depth_l1_m"] = float(seval.depth_l1(mesh, gt, views=cfg.meshing.depth_l1_views, seed=cfg.seed))
+        out["depth_l1_m"] = float(seval.depth_l1(mesh, gt, views=cfg.evaluation.depth_l1_views, seed=cfg.seed))
     except Exception as exc:  # the metric needs ray casting; never lose a run over it
         log.warning("depth L1 failed: %s", exc)
         out["depth_l1_m"] = None

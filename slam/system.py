@@ -204,8 +204,7 @@ class SLAM:
             elif k > 0:
                 est[-1] = res.pose.cpu()
             if k % cfg.mapping.keyframe_every == 0:
-                gt = self.gt[k] if self.gt is not None else None
-                self.keyframes.add(Keyframe(k, color.cpu(), depth.cpu(), est[-1].clone(), gt))
+                self.keyframes.add(Keyframe(k, color.cpu(), depth.cpu(), est[-1].clone()))
         return FrameRecord(k=k, frame=int(self.indices[k]), color=color, depth=depth,
                            pose=pose_to_matrix(est[-1]), gt=self.gt[k] if self.gt is not None else None,
                            tracked=tracked, mapped=mapped)

@@ -15,7 +15,7 @@ import torch
 
 import tdfields
 from slam.config import Config
-from slam.losses import LossWeights, total_loss, tracking_inliers
+from slam.losses import total_loss, tracking_inliers
 from slam.optim import adam
 from slam.pose import pose_to_matrix, standardize_quaternion
 from slam.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
@@ -54,7 +54,7 @@ def track_frame(
     tc = cfg.tracking
     device = depth.device
     H, W = depth.shape
-    weights = LossWeights(**vars(tc.weights))
+    weights = tc.weights
     T = cfg.scene.truncation
     q = torch.nn.Parameter(init_pose[:4].clone().to(device))
     t = torch.nn.Parameter(init_pose[4:].clone().to(device))

@@ -29,7 +29,7 @@ def main(args) -> int:
     import torch
 
     import tdfields
-    from slam.config import _build, Config
+    from slam.config import config_from_dict
     from slam.mesher import Hull, extract_mesh, hull_points
     from slam.scene import SceneModel
 
@@ -40,7 +40,7 @@ def main(args) -> int:
         raise SlamInputError(str(exc)) from None
     if not ckpt.get("config") or "poses" not in ckpt.get("extra", {}):
         raise SlamInputError(f"{path}: not an lrslam run checkpoint (no config or poses)")
-    cfg = _build(Config, ckpt["config"])
+    cfg = config_from_dict(ckpt["config"], upgrade=True)
     extra = ckpt["extra"]
     scene = SceneModel(cfg, torch.tensor(extra["aabb"]))
     scene.load_state_dict(ckpt["state_dict"])

@@ -74,3 +74,84 @@ def test_exponent_notation_is_a_number():
         load_config("synthetic", ["mapping.lr_geometry=1e"])
     with pytest.raises(SlamInputError, match="keep_freed_memory"):
         load_config("synthetic", ["keep_freed_memory=maybe"])
+
+
+def _numeric_keys(cls=None, prefix=""):
+    """Every int / float / list-of-number key of the config tree with its dataclass field."""
+    import dataclasses
+    from typing import get_type_hints
+
+    from slam.config import Config
+    from slam.losses import LossWeights
+
+    cls = cls or Config
+    hints = get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        tp = hints[f.name]
+        if dataclasses.is_dataclass(tp):
+            yield from _numeric_keys(tp, prefix + f.name + ".")
+        elif cls is LossWeights or any(t in str(tp) for t in ("int", "float")) or f.name in (
+                "cell_sizes", "ignore_edge"):
+            yield prefix + f.name, f
+
+
+def test_every_numeric_key_declares_a_range():
+    from slam.losses import LossWeights
+
+    missing = [k for k, f in _numeric_keys() if "range" not in f.metadata and not k.split(".")[-1] in
+               LossWeights.__dataclass_fields__]
+    assert missing == []
+
+
+def _bad_value(key, rng):
+    if rng.lo is not None:
+        v = rng.lo - 1 if not rng.lo_open else rng.lo
+    else:
+        v = rng.hi + 1
+    return [v, v] if key.endswith(("cell_sizes", "ignore_edge")) else v
+
+
+@pytest.mark.parametrize("key", [k for k, _ in _numeric_keys()])
+def test_out_of_range_values_name_key_value_and_range(key):
+    from slam.config import Range
+
+    f = dict(_numeric_keys())[key]
+    rng = f.metadata.get("range", Range(0))
+    bad = _bad_value(key, rng)
+    with pytest.raises(SlamInputError, match=rf"config key '{key}' = .* is out of range: must be"):
+        load_config("synthetic", [f"{key}={bad}"])
+
+
+def test_moved_keys_say_where_they_went():
+    with pytest.raises(SlamInputError, match="'meshing.eval_samples' is now 'evaluation.samples'"):
+        load_config("synthetic", ["meshing.eval_samples=10"])
+
+
+def test_cli_exits_2_with_one_line_for_a_bad_value(capsys):
+    from slam.cli import main
+
+    assert main(["run", "tracking.iters=0", "--no-mesh"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["lrslam run: error: config key 'tracking.iters' = 0 is out of range: must be >= 1"]
+
+
+def test_saved_config_reloads_identically(tmp_path):
+    from slam.config import config_from_dict, save_config
+
+    import yaml
+
+    cfg = load_config("tum/fr1_rpy-cpu", ["seed=3", "representation=eslam"])
+    save_config(cfg, tmp_path / "config.yaml")
+    assert config_from_dict(yaml.safe_load((tmp_path / "config.yaml").read_text())) == cfg
+
+
+def test_configs_written_by_older_versions_are_upgraded():
+    from slam.config import config_from_dict
+
+    old = load_config("synthetic").to_dict()
+    old["meshing"].update(eval_samples=1234, eval_icp=False, depth_l1_views=7)
+    del old["evaluation"]
+    cfg = config_from_dict(old, upgrade=True)
+    assert (cfg.evaluation.samples, cfg.evaluation.icp, cfg.evaluation.depth_l1_views) == (1234, False, 7)
+    with pytest.raises(SlamInputError, match="is now 'evaluation.samples'"):
+        config_from_dict(old)
