@@ -94,6 +94,7 @@ class DataConfig:
     max_frames: Optional[int] = num(None, **COUNT)
     stride: int = num(1, **COUNT)
     max_bad_fraction: float = num(0.1, **FRACTION)
+    prefetch: int = num(2, **NONNEG)  # frames read ahead on a background thread (0: on demand)
     options: dict = field(default_factory=dict)
 
 
@@ -154,7 +155,9 @@ class TrackingConfig:
     lr_t: float = num(0.001, **POSITIVE)
     lr_r: float = num(0.001, **POSITIVE)
     ignore_edge: list = num(lambda: [75, 75], **NONNEG)
-    const_speed: bool = True
+    # the starting pose: ESLAM's constant velocity (const_speed), the previous pose, or depth ICP from the
+    # previous frame started at the constant-velocity guess (ours; slam/odometry.py)
+    init: str = choice("const_speed", ("const_speed", "previous", "icp"))
     outlier_factor: float = num(10.0, **POSITIVE)
     weights: LossWeights = field(default_factory=TRACKING_WEIGHTS)
 
@@ -211,6 +214,9 @@ class Config:
     device: str = "cpu"
     threads: int = num(0, **NONNEG)  # 0 = leave torch's default
     keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.runtime)
+    parallel: bool = False  # mapping on a worker thread beside the tracker (slam.map_worker)
+    checkpoint_every: int = num(0, **NONNEG)  # frames between checkpoints (0: by time, checkpoint_interval_s)
+    checkpoint_interval_s: float = num(60.0, **POSITIVE)  # at most this much work is lost (checkpoint_every: 0)
     representation: str = choice("lrslam", REPRESENTATIONS)
     data: DataConfig = field(default_factory=DataConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
@@ -368,6 +374,7 @@ MOVED = {
     "meshing.eval_samples": "evaluation.samples",
     "meshing.eval_icp": "evaluation.icp",
     "meshing.depth_l1_views": "evaluation.depth_l1_views",
+    "tracking.const_speed": "tracking.init (const_speed, previous or icp)",
 }
 
 
@@ -400,6 +407,10 @@ def _build(cls, data: dict, prefix: str = ""):
             raise SlamInputError(f"unknown config key '{prefix}{k}'; valid keys here: {', '.join(sorted(fields_))}")
     kwargs = {}
     for k, v in data.items():
+        f = fields_[k]
+        if isinstance(v, dict) and dataclasses.is_dataclass(hints[k]) and f.default_factory is not dataclasses.MISSING:
+            # a partial mapping fills in from this field's own default (mapping.weights is not tracking.weights)
+            v = {**dataclasses.asdict(f.default_factory()), **v}
         kwargs[k] = _coerce(v, hints[k], prefix + k)
         _check_value(prefix + k, kwargs[k], fields_[k].metadata, _CLASS_RANGES.get(cls))
     return cls(**kwargs)
@@ -408,6 +419,9 @@ def _build(cls, data: dict, prefix: str = ""):
 def _upgraded(data: dict) -> dict:
     """``data`` with every key of :data:`MOVED` put where it lives now (configs written by older versions)."""
     out = copy.deepcopy(data)
+    tracking = out.get("tracking")
+    if isinstance(tracking, dict) and "const_speed" in tracking:
+        tracking.setdefault("init", "const_speed" if tracking.pop("const_speed") else "previous")
     for old, new in MOVED.items():
         *path, leaf = old.split(".")
         node = out

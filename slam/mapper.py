@@ -24,10 +24,24 @@ from slam.rendering import camera_rays, pixel_directions, ray_box_exit, render_r
 
 @dataclass
 class MapResult:
-    pose: torch.Tensor  # [7] refined current pose
-    window: list[int]  # frame indices used
+    """``pose``: ``[7]`` (possibly BA-refined) current pose; ``window``: frame positions used; ``loss``: the last
+    finite loss; ``ok``: at least one step was taken; ``skipped``: steps skipped for a non-finite loss or
+    gradient."""
+
+    pose: torch.Tensor
+    window: list[int]
     loss: float
     ok: bool
+    skipped: int = 0
+
+
+def finite_step(loss: torch.Tensor, params: list[torch.Tensor]) -> bool:
+    """Whether ``loss`` and every gradient of ``params`` (after ``loss.backward()``) are finite."""
+    grads = [p.grad for p in params if p.grad is not None]
+    if not grads:
+        return bool(torch.isfinite(loss))
+    norms = torch._foreach_norm(grads)  # one fused pass over the gradients
+    return bool(torch.isfinite(loss) & torch.isfinite(torch.stack(norms)).all())
 
 
 def _normalised(p: torch.Tensor) -> torch.Tensor:
@@ -98,6 +112,8 @@ def map_frame(
         cam = torch.nn.Parameter(poses0[free].clone())
         groups.append({"params": [cam], "lr": mc.joint_opt_cam_lr})
     opt = adam(groups)
+    params = [p for g in groups for p in g["params"]]
+    steps = skipped = 0
 
     per_frame = max(mc.pixels // F, 1)
     iters = mc.iters_first if first else mc.iters
@@ -126,14 +142,22 @@ def map_frame(
                           cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator,
                           cfg.rendering.color_cutoff)
         loss, _ = total_loss(out.sdf, out.z, out.depth, out.color, D, C, T, weights)
-        if not torch.isfinite(loss):
-            return MapResult(pose, frame_ids, float("nan"), False)
         opt.zero_grad(set_to_none=True)
+        if not bool(torch.isfinite(loss)):
+            skipped += 1  # nothing is stepped: the map (and Adam's state) stay as they were
+            continue
         loss.backward()
+        if not finite_step(loss, params):
+            skipped += 1
+            opt.zero_grad(set_to_none=True)
+            continue
         opt.step()
+        steps += 1
         last = float(loss.detach())
 
     refined = pose
+    if steps == 0:
+        return MapResult(pose, frame_ids, float("nan"), False, skipped)
     if cam is not None:
         new = _normalised(cam.detach().cpu())
         if bool(torch.isfinite(new).all()):
@@ -143,4 +167,4 @@ def map_frame(
                     keyframes.frames[window[pos]].pose = new[k].clone()
                 else:
                     refined = new[k].clone()
-    return MapResult(refined, frame_ids, last, True)
+    return MapResult(refined, frame_ids, last, True, skipped)

@@ -1,10 +1,13 @@
 """The SLAM loop: tracking every frame, mapping every ``every_frame`` frames (and the last), keyframes, mesh
 extraction. Writing a run's outputs lives in :mod:`slam.outputs`, a whole run to a folder in :mod:`slam.runner`.
 
-Sequential by design, like ESLAM in practice (its tracker waits for the mapper at every mapped frame).
-Robustness: a frame without valid depth is not tracked or mapped (its pose is the constant-velocity
-prediction); a tracking result that is not finite falls back to the prediction; a non-finite mapping loss
-stops that mapping call before any update. Each such event is logged and listed in ``metrics.json``.
+Frames are read ahead on a background thread (:mod:`slam.frames`); mapping runs inline (sequential, ESLAM's
+effective schedule) or beside the tracker (``parallel``), both deterministic (:mod:`slam.map_worker`).
+
+Robustness: a frame that cannot be read, or has no valid depth, is not tracked or mapped (its pose is the
+prediction: constant velocity, or the previous pose); a tracking result that is not finite falls back to the
+prediction and the frame is not mapped; a mapping step whose loss or gradient is not finite is skipped, so the map
+is never written with NaNs. Each such event is logged and listed in ``metrics.json``.
 """
 
 from __future__ import annotations
@@ -20,8 +23,9 @@ import torch
 
 from slam.config import Config
 from slam.errors import SlamInputError
-from slam.keyframes import Keyframe, KeyframeStore
-from slam.mapper import map_frame
+from slam.frames import FrameSource
+from slam.keyframes import KeyframeStore
+from slam.map_worker import MapJob, MapWorker
 from slam.pose import constant_velocity, matrix_to_pose, pose_to_matrix
 from slam.observers import FrameRecord, Observer
 from slam.runtime import keep_freed_memory, set_threads
@@ -104,9 +108,22 @@ def auto_bound(depths: list[torch.Tensor], c2w0: torch.Tensor, percentile: float
 # --------------------------------------------------------------------------------------------------- loop
 @dataclass
 class RunState:
-    est: list = field(default_factory=list)  # [7] tensors, one per processed frame
+    """Everything the loop accumulates (and a checkpoint keeps): one entry per processed frame in ``est``
+    (``[7]`` poses), ``trusted`` (False where tracking was lost or the frame was skipped) and ``frame_times``
+    (seconds); ``events`` (skipped frames, fallbacks, recoveries); ``bad_frames`` (unreadable frames)."""
+
+    est: list = field(default_factory=list)
+    trusted: list = field(default_factory=list)
     frame_times: list = field(default_factory=list)
     events: list = field(default_factory=list)
+    bad_frames: int = 0
+    initialized: bool = False  # the first-frame warm-up has run (on the first frame with depth)
+    prev_depth_k: int = -1  # position of the last frame with depth (ICP's reference)
+    tracking: list = field(default_factory=list)  # per tracked frame: loss, iterations, inlier share
+
+
+class TooManyBadFrames(SlamInputError):
+    """More than ``data.max_bad_fraction`` of the frames read so far could not be read."""
 
 
 class SLAM:
@@ -128,16 +145,20 @@ class SLAM:
             keep_freed_memory()
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed)
+        # separate streams for the tracker and the mapper: the same draws whichever runs first (parallel mode)
         self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.map_gen = torch.Generator().manual_seed(cfg.seed + 7919)
         gt = getattr(dataset, "gt_poses", None)
         self.gt = None if gt is None else torch.as_tensor(np.asarray(gt), dtype=torch.float32)[self.indices]
-        first = dataset[self.indices[0]]
+        self.state = RunState()
+        first = self._first_readable()
         self.intr = first.intrinsics
-        self.c2w0 = self._gt_or_identity(0)
+        self.c2w0, self.c2w0_source = self._initial_pose()
         if cfg.scene.bound == "auto":
             k = max(1, min(cfg.scene.bound_auto_frames, len(self.indices)))
-            depths = [first.depth] + [dataset[self.indices[i]].depth for i in range(1, k)]
-            self.bound = auto_bound(depths, self.c2w0, cfg.scene.bound_auto_percentile, cfg.scene.bound_auto_margin)
+            depths = [first.depth] + [self._depth_or_none(i) for i in range(1, k)]
+            self.bound = auto_bound([d for d in depths if d is not None], self.c2w0, cfg.scene.bound_auto_percentile,
+                                    cfg.scene.bound_auto_margin)
             log.info("bound=auto -> %s", [[round(v, 3) for v in r] for r in self.bound])
         else:
             self.bound = [list(map(float, r)) for r in cfg.scene.bound]
@@ -145,13 +166,42 @@ class SLAM:
         self.aabb = scene_aabb(self.bound, cfg.scene.bound_dividable)
         self.scene = SceneModel(cfg, self.aabb).to(self.device)
         self.keyframes = KeyframeStore()
-        self.state = RunState()
+        self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
+                                  ahead=cfg.data.prefetch)
+        self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel)
+        self._prev_depth: torch.Tensor | None = None  # depth of the last frame with depth (ICP's reference)
 
-    def _gt_or_identity(self, k: int) -> torch.Tensor:
-        if self.gt is not None and bool(torch.isfinite(self.gt[k]).all()):
-            return self.gt[k].clone()
-        return torch.eye(4)
+    # ------------------------------------------------------------------------------------------------ set-up
+    def _first_readable(self):
+        """The first frame that loads (its intrinsics and depth set up the run); bad ones before it are events."""
+        last_exc = None
+        for k, i in enumerate(self.indices[: max(1, int(len(self.indices) * self.cfg.data.max_bad_fraction) + 1)]):
+            try:
+                return self.ds[i]
+            except (SlamInputError, OSError, ValueError) as exc:
+                last_exc = exc
+                log.warning("frame %d: unreadable (%s)", i, exc)
+        raise SlamInputError(f"no readable frame at the start of the sequence: {last_exc}")
 
+    def _depth_or_none(self, k: int):
+        try:
+            return self.ds[self.indices[k]].depth
+        except (SlamInputError, OSError, ValueError):
+            return None
+
+    def _initial_pose(self) -> tuple[torch.Tensor, str]:
+        """Frame 0's camera-to-world: its ground truth when finite (ESLAM pins frame 0 to it), else the first
+        finite ground-truth pose of the sequence (ScanNet marks some as invalid), else the identity."""
+        if self.gt is not None:
+            ok = torch.isfinite(self.gt).flatten(1).all(1)
+            if bool(ok[0]):
+                return self.gt[0].clone(), "ground truth"
+            if bool(ok.any()):
+                j = int(torch.nonzero(ok)[0])
+                return self.gt[j].clone(), f"ground truth of frame {self.indices[j]} (frame {self.indices[0]}'s is invalid)"
+        return torch.eye(4), "identity (no ground truth)"
+
+    # ----------------------------------------------------------------------------------------------- helpers
     def live_ate(self) -> float:
         if self.gt is None or len(self.state.est) < 3:
             return float("nan")
@@ -163,70 +213,142 @@ class SLAM:
         except SlamInputError:
             return float("nan")
 
-    def _event(self, k: int, what: str) -> None:
+    def _event(self, k: int, what: str, **extra) -> None:
         log.warning("frame %d: %s", self.indices[k], what)
-        self.state.events.append({"frame": int(self.indices[k]), "event": what})
+        self.state.events.append({"frame": int(self.indices[k]), "event": what, **extra})
 
+    def _prediction(self, k: int) -> tuple[torch.Tensor, str]:
+        """The pose frame ``k`` starts from before tracking, and what it is."""
+        est = self.state.est
+        if self.cfg.tracking.init != "previous" and k >= 2:
+            return constant_velocity(est[-1], est[-2]), "constant-velocity pose"
+        return est[-1].clone(), "previous pose"
+
+    def _icp_start(self, guess: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        """``tracking.init=icp``: the previous pose times the depth-ICP motion from the previous frame with depth
+        (started at the motion ``guess`` implies); ``guess`` itself when ICP does not converge."""
+        from slam.odometry import icp_relative_pose
+
+        prev = pose_to_matrix(self.state.est[-1]).double()
+        rel0 = torch.linalg.solve(prev, pose_to_matrix(guess).double())
+        res = icp_relative_pose(self._prev_depth, depth, self.intr, init=rel0)
+        if not res.ok:
+            return guess
+        return matrix_to_pose((prev @ res.relative.double()).float())
+
+    def _apply(self, done) -> None:
+        """Results of finished mapping calls: the BA-refined pose of the mapped frame, events."""
+        for d in done:
+            k = d.job.k
+            if not d.result.ok:
+                self._event(k, "mapping call failed: no finite loss in any iteration, map unchanged")
+            elif k > 0:
+                self.state.est[k] = d.result.pose.cpu()
+            if d.result.skipped:
+                self._event(k, f"mapping: {d.result.skipped} step(s) skipped (non-finite loss or gradient)")
+
+    def _check_bad_frames(self) -> None:
+        n = len(self.state.est)
+        if self.state.bad_frames > self.cfg.data.max_bad_fraction * n:
+            raise TooManyBadFrames(f"{self.state.bad_frames} of the first {n} frames could not be read "
+                                   f"(data.max_bad_fraction = {self.cfg.data.max_bad_fraction}); see the events")
+
+    # ------------------------------------------------------------------------------------------------- a frame
     def step(self, k: int) -> FrameRecord:
         """Process the k-th selected frame (track, then map if scheduled); returns what happened."""
         cfg = self.cfg
-        frame = self.ds[self.indices[k]]
-        color = torch.as_tensor(frame.color, dtype=torch.float32).to(self.device)
-        depth = torch.as_tensor(frame.depth, dtype=torch.float32).to(self.device)
-        depth = torch.where(torch.isfinite(depth), depth, torch.zeros_like(depth))
-        has_depth = bool((depth > 0).any())
-        est = self.state.est
-        if k == 0:
-            pose = matrix_to_pose(self._gt_or_identity(0))
+        st = self.state
+        self._apply(self.mapper.sync(k))
+        frame = self.frames.get(k)
+        tracked = mapped = False
+        trusted = True
+        if not frame.ok:
+            st.bad_frames += 1
+            pose, what = (matrix_to_pose(self.c2w0), "initial pose") if k == 0 else self._prediction(k)
+            self._event(k, f"unreadable frame skipped, {what} used: {frame.error}", bad_frame=True)
+            trusted = False
+        elif k == 0:
+            pose = matrix_to_pose(self.c2w0)
+            if self.c2w0_source != "ground truth":
+                self._event(k, f"initial pose: {self.c2w0_source}")
+            if not frame.has_depth:
+                self._event(k, "no valid depth: the map starts at the first frame that has depth")
+        elif not frame.has_depth or not st.initialized:
+            pose, what = self._prediction(k)
+            reason = "no valid depth" if not frame.has_depth else "no map yet (no earlier frame had depth)"
+            self._event(k, f"{reason}: not tracked, {what} used")
+            trusted = frame.has_depth  # the first frame with depth starts the map at this pose
         else:
-            if cfg.tracking.const_speed and k >= 2:
-                init = constant_velocity(est[-1], est[-2])
-            else:
-                init = est[-1].clone()
-            if not has_depth:
-                self._event(k, "no valid depth: not tracked or mapped, pose from constant velocity")
-                pose = init
-            else:
-                res = track_frame(self.scene, color, depth, self.intr, init, cfg, self.gen)
-                if not res.ok:
-                    self._event(k, f"tracking failed ({res.message}): constant-velocity pose used")
-                pose = res.pose
-        est.append(pose.cpu())
-        tracked = k > 0 and has_depth
-        mapped = False
-        last = k == len(self.indices) - 1
-        if has_depth and (k % cfg.mapping.every_frame == 0 or last):
-            mapped = True
-            res = map_frame(self.scene, k, color, depth, est[-1], self.intr, self.keyframes, cfg, self.gen,
-                            first=(k == 0))
+            init, what = self._prediction(k)
+            if cfg.tracking.init == "icp" and self._prev_depth is not None:
+                init = self._icp_start(init, frame.depth)
+            res = track_frame(self.mapper.track_scene, frame.color, frame.depth, self.intr, init, cfg, self.gen)
+            tracked = True
+            st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
+                                "inliers": res.inliers})
             if not res.ok:
-                self._event(k, "non-finite mapping loss: mapping call skipped")
-            elif k > 0:
-                est[-1] = res.pose.cpu()
-            if k % cfg.mapping.keyframe_every == 0:
-                self.keyframes.add(Keyframe(k, color.cpu(), depth.cpu(), est[-1].clone()))
-        return FrameRecord(k=k, frame=int(self.indices[k]), color=color, depth=depth,
-                           pose=pose_to_matrix(est[-1]), gt=self.gt[k] if self.gt is not None else None,
+                self._event(k, f"tracking failed ({res.message}): {what} used")
+                trusted = False
+            pose = res.pose
+        st.est.append(pose.cpu())
+        st.trusted.append(trusted)
+        last = k == len(self.indices) - 1
+        if frame.ok and frame.has_depth and trusted:
+            self._prev_depth = frame.depth
+            st.prev_depth_k = k
+            first = not st.initialized
+            if first or k % cfg.mapping.every_frame == 0 or last:
+                self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first,
+                                          keyframe=first or k % cfg.mapping.keyframe_every == 0))
+                st.initialized = True
+                mapped = True
+        if not self.mapper.parallel:
+            self._apply(self.mapper.sync(k + 1))
+        self._check_bad_frames()
+        return FrameRecord(k=k, frame=int(self.indices[k]), color=frame.color, depth=frame.depth,
+                           pose=pose_to_matrix(st.est[-1]), gt=self.gt[k] if self.gt is not None else None,
                            tracked=tracked, mapped=mapped)
 
-    def run(self, progress: bool = True, observers: Sequence[Observer] = ()) -> RunState:
-        """Process every selected frame, with a progress bar (frame, live ATE, frame time) and the observers'
-        ``on_frame`` after each one."""
+    def finish(self) -> None:
+        """Wait for the mapper and apply its last results (before outputs or a checkpoint)."""
+        self._apply(self.mapper.drain())
+
+    def close(self) -> None:
+        self.frames.close()
+        self.mapper.close()
+
+    def run(self, progress: bool = True, observers: Sequence[Observer] = (), start: int | None = None,
+            should_stop=None, on_frame=None) -> RunState:
+        """Process the selected frames from ``start`` (default: where the state left off), with a progress bar
+        (frame, live ATE, frame time) and the observers' ``on_frame`` after each one.
+
+        Args:
+            should_stop: called after each frame; True ends the loop early (an interrupt).
+            on_frame: called after each frame with its position (periodic checkpoints).
+        """
         from tqdm import tqdm
 
-        bar = tqdm(range(len(self.indices)), disable=not progress, unit="frame", dynamic_ncols=True,
-                   desc=f"lrslam [{self.cfg.representation}]")
-        for k in bar:
-            t0 = time.perf_counter()
-            rec = self.step(k)
-            dt = time.perf_counter() - t0
-            self.state.frame_times.append(dt)
-            rec.dt = dt
-            rec.ate_m = self.live_ate()
-            for obs in observers:
-                obs.on_frame(self, rec)
-            bar.set_postfix_str(f"frame {self.indices[k]}  ATE {rec.ate_m * 100:.2f} cm  {dt:.2f} s/frame")
-        bar.close()
+        start = len(self.state.est) if start is None else start
+        bar = tqdm(range(start, len(self.indices)), disable=not progress, unit="frame", dynamic_ncols=True,
+                   desc=f"lrslam [{self.cfg.representation}]", initial=start, total=len(self.indices))
+        try:
+            for k in bar:
+                t0 = time.perf_counter()
+                rec = self.step(k)
+                dt = time.perf_counter() - t0
+                self.state.frame_times.append(dt)
+                rec.dt = dt
+                rec.ate_m = self.live_ate()
+                for obs in observers:
+                    obs.on_frame(self, rec)
+                bar.set_postfix_str(f"frame {self.indices[k]}  ATE {rec.ate_m * 100:.2f} cm  {dt:.2f} s/frame")
+                if on_frame is not None:
+                    on_frame(k)
+                if should_stop is not None and should_stop():
+                    break
+        finally:
+            bar.close()
+            self.finish()
         return self.state
 
     # ----------------------------------------------------------------------------------------------- results
@@ -252,13 +374,21 @@ class SLAM:
         return mesh
 
     def _cull(self, mesh):
-        """Cull with ``slam.eval.cull_mesh`` using every processed frame's estimated pose (and depth if configured)."""
+        """Cull with ``slam.eval.cull_mesh`` using every processed frame's estimated pose (and depth if configured);
+        unreadable frames do not count as views."""
         from slam.eval import cull_mesh
 
+        poses = self.poses_matrix().copy()
         depths = None
         if self.cfg.meshing.cull_depth_test:
-            depths = [np.asarray(self.ds[i].depth, dtype=np.float32) for i in self.indices]
-        return cull_mesh(mesh, self.poses_matrix(), self.intr, depths=depths, truncation=self.cfg.scene.truncation)
+            depths = []
+            for k in range(len(poses)):
+                d = self._depth_or_none(k)
+                if d is None:
+                    poses[k] = np.nan
+                    d = np.zeros((self.intr.height, self.intr.width), np.float32)
+                depths.append(np.asarray(d, dtype=np.float32))
+        return cull_mesh(mesh, poses, self.intr, depths=depths, truncation=self.cfg.scene.truncation)
 
     def checkpoint_extra(self) -> dict:
         ts = getattr(self.ds, "timestamps", None)

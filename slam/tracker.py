@@ -23,10 +23,16 @@ from slam.rendering import camera_rays, pixel_directions, ray_box_exit, render_r
 
 @dataclass
 class TrackResult:
-    pose: torch.Tensor  # [7]
-    loss: float  # best loss (nan if none was finite)
+    """``pose``: ``[7]`` best-loss pose; ``loss``: its loss (NaN if none was finite); ``ok``; ``message``: why it
+    stopped early; ``iters``: iterations run; ``inliers``: share of the rays kept by the outlier rule at the
+    best iteration."""
+
+    pose: torch.Tensor
+    loss: float
     ok: bool
     message: str = ""
+    iters: int = 0
+    inliers: float = float("nan")
 
 
 def track_frame(
@@ -61,9 +67,11 @@ def track_frame(
     opt = adam([{"params": [q], "lr": tc.lr_r}, {"params": [t], "lr": tc.lr_t}], betas=(0.5, 0.999))
     best_loss = float("inf")
     best_pose = None
+    best_inliers = float("nan")
     message = ""
+    it = 0
     with tdfields.frozen(scene):  # no scene gradients; Six-axis caches its planes for this call only
-        for _ in range(tc.iters):
+        for it in range(1, tc.iters + 1):
             v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
             v, u = v.to(device), u.to(device)
             D = depth[v, u]
@@ -96,6 +104,7 @@ def track_frame(
             if value < best_loss:
                 best_loss = value
                 best_pose = torch.cat((q, t)).detach().clone()
+                best_inliers = float(inl.float().mean())
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -103,7 +112,7 @@ def track_frame(
                 message = "non-finite pose update"
                 break
     if best_pose is None or not bool(torch.isfinite(best_pose).all()):
-        return TrackResult(init_pose.clone(), float("nan"), False, message or "no finite pose")
+        return TrackResult(init_pose.clone(), float("nan"), False, message or "no finite pose", it)
     q_n = best_pose[:4] / best_pose[:4].norm().clamp(min=1e-12)
     best_pose = torch.cat((standardize_quaternion(q_n), best_pose[4:]))
-    return TrackResult(best_pose.cpu(), best_loss, True, message)
+    return TrackResult(best_pose.cpu(), best_loss, True, message, it, best_inliers)

@@ -1,12 +1,16 @@
-"""``lrslam run``: track and map a sequence, write trajectory, mesh, checkpoint and metrics."""
+"""``lrslam run``: track and map a sequence, write trajectory, mesh, checkpoint and metrics; ``--resume`` goes on
+from a run folder's checkpoint."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import logging
+import sys
 import time
 from pathlib import Path
+
+from slam.errors import SlamInputError
 
 
 def register(subparsers) -> None:
@@ -16,18 +20,24 @@ def register(subparsers) -> None:
         description=(
             "Run LRSLAM (or ESLAM / an ablation via representation=...) on a sequence. With no arguments it "
             "tracks and maps the bundled synthetic room on the CPU. Outputs in --out: trajectory.txt, "
-            "trajectory_gt.txt, mesh.ply, trajectory.png, config.yaml, checkpoint.pt, metrics.json."
+            "trajectory_gt.txt, mesh.ply, trajectory.png, config.yaml, checkpoint.pt, metrics.json. "
+            "A checkpoint is written every minute (checkpoint_every / checkpoint_interval_s); Ctrl-C or SIGTERM "
+            "finish the current frame, write the outputs so far (metrics.json marked partial) and say how to "
+            "go on with --resume."
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "overrides are dotted key=value pairs, e.g. tracking.iters=20 representation=eslam bound=auto\n"
-            "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu, ..."
+            "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu, ...\n"
+            "resume an interrupted run:  lrslam run --resume runs/rpy"
         ),
     )
-    p.add_argument("--config", default="synthetic", help="preset name or YAML file (default: synthetic)")
+    p.add_argument("--config", default=None, help="preset name or YAML file (default: synthetic)")
     p.add_argument("--data", default=None, help="dataset folder (default: the preset's; synthetic: bundled)")
     p.add_argument("--out", default=None, help="output folder (default: runs/<preset>-<representation>)")
     p.add_argument("--device", default=None, choices=["cpu", "cuda"], help="torch device (default: the config's)")
+    p.add_argument("--resume", metavar="OUT_DIR", default=None,
+                   help="go on from the latest checkpoint of this run folder (same config and data)")
     p.add_argument("--no-mesh", action="store_true", help="skip mesh extraction and reconstruction metrics")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides")
@@ -36,18 +46,37 @@ def register(subparsers) -> None:
 
 def main(args) -> int:
     from slam.config import load_config
-    from slam.runner import run_to_folder
+    from slam.runner import RunInterrupted, resume_config, run_to_folder
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    overrides = list(args.overrides)
-    if args.data is not None:
-        overrides.append(f"data.path={args.data}")
-    if args.device is not None:
-        overrides.append(f"device={args.device}")
-    cfg = load_config(args.config, overrides)
-    out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"
+    if args.resume is not None:
+        given = [flag for flag, v in (("--config", args.config), ("--data", args.data), ("--out", args.out),
+                                      ("key=value overrides", args.overrides)) if v]
+        if given:
+            raise SlamInputError(f"--resume continues a run with its own config and data; drop {', '.join(given)}")
+        out = Path(args.resume)
+        cfg = resume_config(out)
+        if args.device is not None:
+            cfg.device = args.device
+        metrics_path = out / "metrics.json"
+        if metrics_path.is_file() and not json.loads(metrics_path.read_text()).get("partial", False):
+            print(f"{out}: this run is complete; nothing to resume")
+            return 0
+    else:
+        overrides = list(args.overrides)
+        if args.data is not None:
+            overrides.append(f"data.path={args.data}")
+        if args.device is not None:
+            overrides.append(f"device={args.device}")
+        cfg = load_config(args.config or "synthetic", overrides)
+        out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"
     t0 = time.perf_counter()
-    metrics = run_to_folder(cfg, out, progress=not args.quiet, mesh=not args.no_mesh)
+    try:
+        metrics = run_to_folder(cfg, out, progress=not args.quiet, mesh=not args.no_mesh,
+                                resume=args.resume is not None)
+    except RunInterrupted as exc:
+        print(f"lrslam run: {exc}", file=sys.stderr)
+        return exc.exit_code
     total = time.perf_counter() - t0
     summary = {k: metrics.get(k) for k in ("num_frames", "ate_rmse_m", "ate_mean_m", "fpt_s")}
     summary["parameters_total"] = metrics["parameters"]["total"]

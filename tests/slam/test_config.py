@@ -155,3 +155,9 @@ def test_configs_written_by_older_versions_are_upgraded():
     assert (cfg.evaluation.samples, cfg.evaluation.icp, cfg.evaluation.depth_l1_views) == (1234, False, 7)
     with pytest.raises(SlamInputError, match="is now 'evaluation.samples'"):
         config_from_dict(old)
+
+
+def test_a_partial_nested_override_keeps_the_other_defaults():
+    cfg = load_config("synthetic", ["tracking.weights.fs=0", "mapping.weights.color=2"])
+    assert (cfg.tracking.weights.fs, cfg.tracking.weights.center, cfg.tracking.weights.tail) == (0.0, 200.0, 50.0)
+    assert (cfg.mapping.weights.color, cfg.mapping.weights.fs, cfg.mapping.weights.depth) == (2.0, 5.0, 0.1)

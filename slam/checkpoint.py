@@ -1,0 +1,144 @@
+"""Run checkpoints: everything a SLAM run needs to go on from where it stopped, in the scene's own checkpoint.
+
+``checkpoint.pt`` of a run folder is a :func:`tdfields.save` checkpoint of the scene (config, state_dict, poses,
+bounds, keyframes, as :mod:`slam.outputs` always wrote it) whose ``extra["run"]`` holds the loop's state: the
+position to go on from, the per-frame state (:class:`slam.system.RunState`), the keyframes' positions and
+BA-refined poses, the random states (torch, numpy, the tracker's and the mapper's generators) and, in parallel
+mode, the tracker's copy of the map and the mapping calls it has not applied yet. Keyframe images are not stored:
+they are read again from the dataset (deterministically the same), so a checkpoint stays a few MB whatever the
+sequence length; the dataset's fingerprint (frame count and file names) must match on resume.
+
+Written with a temporary name and a rename, so a kill while writing leaves the previous checkpoint intact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from slam.errors import SlamInputError
+from slam.keyframes import Keyframe
+from slam.map_worker import MapDone, MapJob
+from slam.mapper import MapResult
+
+RUN_FORMAT = "lrslam-run/1"
+
+
+def fingerprint(system) -> dict:
+    """What must not change between a run and its resume: the frames processed and their files."""
+    ds = system.ds
+    names = []
+    for attr in ("color_paths", "depth_paths"):
+        paths = getattr(ds, attr, None)
+        if paths:
+            names += [Path(paths[i]).name for i in (system.indices[0], system.indices[-1])]
+    return {"frames": len(system.indices), "dataset_frames": len(ds), "files": names}
+
+
+def _numpy_state() -> dict:
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    return {"keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos), "has_gauss": int(has_gauss),
+            "cached": float(cached)}
+
+
+def _set_numpy_state(s: dict) -> None:
+    np.random.set_state(("MT19937", s["keys"].numpy().astype(np.uint32), s["pos"], s["has_gauss"], s["cached"]))
+
+
+def run_state(system) -> dict:
+    """The loop's state as plain tensors and numbers (``torch.load(weights_only=True)`` can read it back).
+
+    Call between frames; pending mapping calls are waited for (not applied: the schedule applies them)."""
+    mapper = system.mapper
+    pending = []
+    for k, item in mapper._queue:
+        done = item if isinstance(item, MapDone) else item.result()
+        pending.append({"k": done.job.k, "pose": done.job.pose.cpu(), "first": done.job.first,
+                        "keyframe": done.job.keyframe, "seconds": done.seconds,
+                        "result": {"pose": done.result.pose.cpu(), "window": list(done.result.window),
+                                   "loss": float(done.result.loss), "ok": bool(done.result.ok),
+                                   "skipped": int(done.result.skipped)},
+                        "snapshot": done.snapshot})
+    st = dataclasses.asdict(system.state)
+    st["est"] = torch.stack(system.state.est) if system.state.est else torch.zeros(0, 7)
+    out = {
+        "format": RUN_FORMAT,
+        "next": len(system.state.est),
+        "state": st,
+        "keyframes": [{"k": kf.index, "pose": kf.pose.clone()} for kf in system.keyframes.frames],
+        "rng": {"torch": torch.get_rng_state(), "numpy": _numpy_state(), "gen": system.gen.get_state(),
+                "map_gen": system.map_gen.get_state()},
+        "pending": pending,
+        "track_scene": ({k: v.detach().cpu() for k, v in mapper.track_scene.state_dict().items()}
+                        if mapper.parallel else None),
+        "fingerprint": fingerprint(system),
+    }
+    return out
+
+
+def save_checkpoint(system, path: Path) -> None:
+    """``checkpoint.pt``: the scene checkpoint with the run state, written atomically."""
+    import tdfields
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    extra = system.checkpoint_extra()
+    extra["run"] = run_state(system)
+    tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=extra)
+    os.replace(tmp, path)
+
+
+def load_run(path: Path) -> dict:
+    """The checkpoint at ``path`` (a dict as :func:`tdfields.load` returns); SlamInputError when it is missing,
+    unreadable, or holds no run state."""
+    import tdfields
+
+    try:
+        ckpt = tdfields.load(path)
+    except FileNotFoundError:
+        raise SlamInputError(f"{path}: no checkpoint to resume from") from None
+    except ValueError as exc:
+        raise SlamInputError(str(exc)) from None
+    run = ckpt.get("extra", {}).get("run")
+    if not isinstance(run, dict) or run.get("format") != RUN_FORMAT:
+        raise SlamInputError(f"{path}: this checkpoint holds no resumable run state (written by an older version?)")
+    return ckpt
+
+
+def restore(system, ckpt: dict) -> int:
+    """Put a freshly built ``system`` (same config and data) into the checkpoint's state; returns the position of
+    the next frame to process."""
+    run = ckpt["extra"]["run"]
+    if run["fingerprint"] != fingerprint(system):
+        raise SlamInputError(f"the data differ from the checkpointed run's ({run['fingerprint']} vs "
+                             f"{fingerprint(system)}): resume with the same data folder and config")
+    with torch.no_grad():
+        system.scene.load_state_dict(ckpt["state_dict"])
+        if run["track_scene"] is not None:
+            system.mapper.track_scene.load_state_dict(run["track_scene"])
+    st = dict(run["state"])
+    est = st.pop("est")
+    system.state = type(system.state)(**st)
+    system.state.est = [p.clone() for p in est]
+    system.keyframes.frames.clear()
+    for kf in run["keyframes"]:
+        frame = system.frames.get(kf["k"])
+        if not frame.ok:
+            raise SlamInputError(f"keyframe {kf['k']} can no longer be read: {frame.error}")
+        system.keyframes.add(Keyframe(kf["k"], frame.color.cpu(), frame.depth.cpu(), kf["pose"].clone()))
+    if system.state.prev_depth_k >= 0:
+        system._prev_depth = system.frames.get(system.state.prev_depth_k).depth
+    for p in run["pending"]:
+        job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])
+        r = p["result"]
+        res = MapResult(r["pose"], r["window"], r["loss"], r["ok"], r["skipped"])
+        system.mapper._queue.append((p["k"], MapDone(job, res, p["seconds"], p["snapshot"])))
+    torch.set_rng_state(run["rng"]["torch"])
+    _set_numpy_state(run["rng"]["numpy"])
+    system.gen.set_state(run["rng"]["gen"])
+    system.map_gen.set_state(run["rng"]["map_gen"])
+    return int(run["next"])

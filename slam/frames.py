@@ -1,0 +1,104 @@
+"""The frames a run reads, ahead of time and without aborting on a bad one.
+
+:class:`FrameSource` reads the selected frames of a dataset in order. A background thread reads, decodes,
+undistorts and resizes the next ``ahead`` frames and puts them on the run's device while the loop works on the
+current one (image decoding and torch's resampling release the GIL, so this uses the second core). A frame that
+cannot be read (missing, truncated or corrupt file, wrong image size) comes back as a :class:`LoadedFrame` with
+``error`` set instead of raising, so the loop can skip it like a frame without depth and keep the run.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+from dataclasses import dataclass
+
+import torch
+
+from slam.errors import SlamInputError
+
+
+@dataclass
+class LoadedFrame:
+    """One frame ready for the loop.
+
+    Attributes:
+        k: position in the processed sequence; ``index``: the dataset index.
+        color: ``[H, W, 3]`` float32 RGB in [0, 1] on the run's device, or None for a bad frame.
+        depth: ``[H, W]`` float32 metres on the device (0 invalid; non-finite readings set to 0), or None.
+        error: why the frame could not be read (names the file), None for a good frame.
+    """
+
+    k: int
+    index: int
+    color: torch.Tensor | None
+    depth: torch.Tensor | None
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    @property
+    def has_depth(self) -> bool:
+        return self.ok and bool((self.depth > 0).any())
+
+
+def read_frame(dataset, k: int, index: int, shape: tuple[int, int], device: torch.device) -> LoadedFrame:
+    """Read frame ``index`` of ``dataset`` as a :class:`LoadedFrame` of working size ``shape`` ``(H, W)``."""
+    try:
+        frame = dataset[index]
+        color = torch.as_tensor(frame.color, dtype=torch.float32)
+        depth = torch.as_tensor(frame.depth, dtype=torch.float32)
+    except (SlamInputError, OSError, ValueError) as exc:
+        return LoadedFrame(k, index, None, None, error=str(exc))
+    if tuple(depth.shape) != tuple(shape) or tuple(color.shape) != (*shape, 3):
+        return LoadedFrame(k, index, None, None, error=(
+            f"frame {index}: images are {tuple(color.shape[:2])} (colour) / {tuple(depth.shape)} (depth) after "
+            f"loading, expected {tuple(shape)} like the first frame"))
+    depth = torch.where(torch.isfinite(depth), depth, torch.zeros_like(depth))
+    if device.type == "cuda":
+        color, depth = color.pin_memory(), depth.pin_memory()
+    return LoadedFrame(k, index, color.to(device, non_blocking=True), depth.to(device, non_blocking=True))
+
+
+class FrameSource:
+    """Frames ``indices[k]`` of ``dataset`` in increasing ``k``, read ``ahead`` frames in advance.
+
+    Args:
+        dataset: a ``slam.data`` dataset.
+        indices: dataset index of each processed frame.
+        shape: ``(H, W)`` every frame must have after loading.
+        device: where the tensors go.
+        ahead: frames read in advance on a background thread (0: read on demand, on the caller's thread).
+    """
+
+    def __init__(self, dataset, indices: list[int], shape: tuple[int, int], device: torch.device, ahead: int = 2):
+        self.dataset = dataset
+        self.indices = list(indices)
+        self.shape = tuple(shape)
+        self.device = torch.device(device)
+        self.ahead = int(ahead)
+        self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-read") if ahead > 0 else None
+        self._pending: dict[int, concurrent.futures.Future] = {}
+
+    def _submit(self, k: int) -> None:
+        if k < len(self.indices) and k not in self._pending:
+            self._pending[k] = self._pool.submit(read_frame, self.dataset, k, self.indices[k], self.shape, self.device)
+
+    def get(self, k: int) -> LoadedFrame:
+        """Frame ``k`` (reads ahead up to ``k + ahead``; frames before ``k`` still pending are dropped)."""
+        if self._pool is None:
+            return read_frame(self.dataset, k, self.indices[k], self.shape, self.device)
+        for old in [j for j in self._pending if j < k]:
+            self._pending.pop(old).cancel()
+        for j in range(k, k + self.ahead + 1):
+            self._submit(j)
+        return self._pending.pop(k).result()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            for fut in self._pending.values():
+                fut.cancel()
+            self._pending.clear()
+            self._pool.shutdown(wait=True)
+            self._pool = None
