@@ -5,8 +5,9 @@ import torch
 
 import tdfields
 from tdfields import kernels
-from tdfields.interpolation import grid_coords, to_grid_coords
+from tdfields.interpolation import to_grid_coords
 from tdfields.kernels import threads
+from tdfields.ops import grid_coords
 
 BOXES = [torch.tensor([[-1.0, 2.0], [0.0, 1.5], [-0.5, 0.7]]), torch.tensor([[-1.2, 2.2], [-0.1, 1.5], [-0.5, 0.9]])]
 SHAPES = [(13, 7, 6), (101, 51, 41)]
