@@ -84,7 +84,8 @@ def measure(repeats: int) -> dict:
 
     from conftest import build, points
     from tdfields.interpolation import to_grid_coords
-    from tdfields.program import concat, evaluate
+    from tdfields.ops import evaluate
+    from tdfields.program import concat
 
     x = points()
     rows = []

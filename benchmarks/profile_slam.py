@@ -39,7 +39,7 @@ def stage_timers():
     import torch
 
     import tdfields
-    from tdfields import kernels
+    from tdfields.kernels import fused
 
     acc: dict[str, float] = defaultdict(float)
     depth = {"n": 0}  # nested field calls (MultiResolution -> Field) count once
@@ -63,9 +63,9 @@ def stage_timers():
         return owner, name, original
 
     patches = [wrap(tdfields.MultiResolution, "forward", "fields fwd"), wrap(tdfields.Field, "forward", "fields fwd"),
-               wrap(kernels._FusedProgram, "backward", "fields bwd", static=True),
-               wrap(kernels._FusedCompose, "backward", "fields bwd", static=True),
-               wrap(kernels._FusedGridCoords, "backward", "fields bwd", static=True),
+               wrap(fused._FusedProgram, "backward", "fields bwd", static=True),
+               wrap(fused._FusedCompose, "backward", "fields bwd", static=True),
+               wrap(fused._FusedGridCoords, "backward", "fields bwd", static=True),
                wrap(tdfields.MLPDecoder, "forward", "decoders fwd"), wrap(torch.optim.Adam, "step", "optimizer")]
     try:
         yield acc

@@ -1,8 +1,9 @@
 """The SLAM scene model: geometry + appearance feature fields (built by :func:`tdfields.build` from the config),
 the SDF and RGB decoders and the sharpness ``beta``. No factorisation maths lives here.
 
-Parameter names (used by :func:`tdfields.report` prefixes): ``fields.fields.geometry.*``,
-``fields.fields.appearance.*``, ``sdf_decoder.*``, ``rgb_decoder.*``, ``beta``.
+Parameter names (used by :func:`tdfields.report` prefixes): ``fields.geometry.*``, ``fields.appearance.*``
+(e.g. ``fields.geometry.levels.1.factors.x``), ``sdf_decoder.*``, ``rgb_decoder.*``, ``beta``. Checkpoints written
+with the earlier ``fields.fields.*`` names still load (:class:`tdfields.Hybrid` maps them).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ class SceneModel(nn.Module):
         cfg: resolved config (``geometry``, ``appearance``, ``scene``).
         aabb: ``(3, 2)`` enlarged scene box in metres (see :func:`tdfields.enlarge_bounds`).
 
-    ``sdf_rgb(points [P, 3]) -> (sdf [P] in (-1, 1), rgb [P, 3] in (0, 1))``.
+    :meth:`sdf` and :meth:`rgb` are the two callables :func:`slam.rendering.render_rays` takes.
     """
 
     def __init__(self, cfg: Config, aabb: torch.Tensor):
@@ -60,15 +61,12 @@ class SceneModel(nn.Module):
             self.register_buffer("beta", beta)
 
     def sdf(self, points: torch.Tensor) -> torch.Tensor:
-        """``[P, 3]`` world metres -> ``[P]`` normalised SDF."""
+        """``[P, 3]`` world metres -> ``[P]`` normalised SDF in (-1, 1) (tanh; times the truncation: metres)."""
         return self.sdf_decoder(self.fields["geometry"](points))[..., 0]
 
     def rgb(self, points: torch.Tensor) -> torch.Tensor:
-        """``[P, 3]`` world metres -> ``[P, 3]`` RGB."""
+        """``[P, 3]`` world metres -> ``[P, 3]`` RGB in (0, 1)."""
         return self.rgb_decoder(self.fields["appearance"](points))
-
-    def sdf_rgb(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.sdf(points), self.rgb(points)
 
     def param_groups(self, cfg: Config, factor: float = 1.0) -> list[dict]:
         """Adam groups with the mapping learning rates (decoders incl. beta, geometry, appearance)."""
@@ -86,8 +84,8 @@ class SceneModel(nn.Module):
 def parameter_counts(model: SceneModel) -> dict[str, int]:
     """``{"geometry", "appearance", "decoders", "total"}`` from :func:`tdfields.report` (never hand-written)."""
     rep = tdfields.report(model)
-    geo = rep.parameters_under("fields.fields.geometry")
-    app = rep.parameters_under("fields.fields.appearance")
+    geo = rep.parameters_under("fields.geometry")
+    app = rep.parameters_under("fields.appearance")
     total = rep.total_parameters
     return {"geometry": geo, "appearance": app, "decoders": total - geo - app, "total": total}
 

@@ -30,8 +30,9 @@ from tdfields.dense_grid import DenseGrid
 from tdfields.field import FactorSpec, Field
 from tdfields.frozen import frozen
 from tdfields.hybrid import Hybrid
-from tdfields.interpolation import interpolate, to_grid_coords
+from tdfields.interpolation import to_grid_coords
 from tdfields.multires import MultiResolution
+from tdfields.ops import interpolate
 from tdfields.report import FieldRow, Report, report
 from tdfields.resize import resize
 from tdfields.six_axis import SixAxis

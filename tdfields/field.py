@@ -14,8 +14,8 @@ import torch
 from torch import nn
 
 from tdfields.bounds import as_aabb, contains, grid_shape_for
-from tdfields.interpolation import grid_coords
-from tdfields.program import Program, evaluate, single
+from tdfields.ops import evaluate, grid_coords
+from tdfields.program import Program, single
 
 COMPLEXITIES = ("O(n)", "O(n^2)", "O(n^3)")
 
@@ -200,16 +200,6 @@ class Field(nn.Module):
         if self.has_rank:
             out["rank"] = self.rank
         return out
-
-    @classmethod
-    def from_config(cls, config) -> "Field":
-        """Build a field from a :class:`tdfields.FieldConfig`, a dict or a YAML path (see :func:`tdfields.build`)."""
-        from tdfields.config import build
-
-        field = build(config)
-        if cls is not Field and not isinstance(field, cls):
-            raise ValueError(f"config builds a {type(field).__name__}, not a {cls.__name__}")
-        return field
 
     def extra_repr(self) -> str:
         rank = f", rank={self.rank}" if self.has_rank else ""

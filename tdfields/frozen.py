@@ -24,10 +24,10 @@ from typing import Iterator
 
 from torch import nn
 
+from tdfields.field import Field
 
-def _fields(module: nn.Module) -> list:
-    from tdfields.field import Field
 
+def _fields(module: nn.Module) -> list[Field]:
     return [m for m in module.modules() if isinstance(m, Field)]
 
 

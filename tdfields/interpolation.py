@@ -1,10 +1,11 @@
-"""Functional core: multilinear interpolation of channels-last grids by gathering.
+"""Functional core: world points to grid coordinates, and multilinear interpolation of channels-last grids.
 
-This is the pure-PyTorch reference that every kind uses. It gathers ``2**d`` corner rows from a
-``[*spatial, F]`` tensor viewed as ``[prod(spatial), F]``: measured on a 2-core CPU it beats
-``grid_sample`` for planes (160 ms vs 212 ms forward+backward, 40k points, three 32-channel planes), and it is
-built from ordinary differentiable ops, so second derivatives (eikonal terms, normals) and ``torch.compile``
-work, and gradients flow to the query coordinates (SLAM tracking needs them).
+These are the pure-PyTorch references every kind uses, through :mod:`tdfields.ops`, which runs the fused kernels
+where they apply (this module imports neither). Interpolation gathers ``2**d`` corner rows from a
+``[*spatial, F]`` tensor viewed as ``[prod(spatial), F]``: measured on a 2-core CPU it beats ``grid_sample`` for
+planes (160 ms vs 212 ms forward+backward, 40k points, three 32-channel planes), and it is built from ordinary
+differentiable ops, so second derivatives (eikonal terms, normals) and ``torch.compile`` work, and gradients flow
+to the query coordinates (SLAM tracking needs them).
 """
 
 from __future__ import annotations
@@ -34,40 +35,6 @@ def to_grid_coords(points: torch.Tensor, aabb: torch.Tensor, shape: Sequence[int
     n = torch.as_tensor(shape, device=points.device, dtype=points.dtype)
     g = (points - box[:, 0]) / (box[:, 1] - box[:, 0]) * (n - 1)
     return torch.minimum(torch.maximum(g, torch.zeros_like(n)), n - 1)
-
-
-def grid_coords(points: torch.Tensor, boxes: Sequence[torch.Tensor], shapes: Sequence[Sequence[int]]) -> torch.Tensor:
-    """:func:`to_grid_coords` for several grids (levels) at once (dispatching).
-
-    One fused pass where :mod:`tdfields.kernels` applies (CPU float32/float64 points with numba), else the
-    reference stacked per level; values agree bit for bit.
-
-    Args:
-        points: ``[N, 3]`` world coordinates in metres (differentiable).
-        boxes: one ``(3, 2)`` box in metres per level.
-        shapes: one ``(n_x, n_y, n_z)`` per level.
-
-    Returns:
-        ``[L, N, 3]`` clamped grid coordinates.
-    """
-    from tdfields import kernels
-
-    if kernels.use_fused(points):
-        return kernels.fused_grid_coords(points, boxes, shapes)
-    return torch.stack([to_grid_coords(points, box, shape) for box, shape in zip(boxes, shapes)])
-
-
-def interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
-    """Multilinear interpolation of a channels-last grid at continuous indices (dispatching).
-
-    Uses the fused kernel of :mod:`tdfields.kernels` where it applies (CPU tensors with numba, backend
-    ``"auto"`` or ``"numba"``), else :func:`interpolate_reference`. Same arguments and result.
-    """
-    from tdfields import kernels
-
-    if kernels.use_fused(grid, coords):
-        return kernels.fused_interpolate(grid, coords)
-    return interpolate_reference(grid, coords)
 
 
 def interpolate_reference(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:

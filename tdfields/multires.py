@@ -9,8 +9,8 @@ from torch import nn
 
 from tdfields.bounds import contains
 from tdfields.field import COMPLEXITIES, Field
-from tdfields.interpolation import grid_coords
-from tdfields.program import concat, evaluate
+from tdfields.ops import evaluate, grid_coords
+from tdfields.program import concat
 
 
 class MultiResolution(nn.Module):

@@ -10,8 +10,9 @@ three-factor term of rank k, Six-axis three two-factor terms of rank k, VM three
 multiply, the rank and output offset of each term). Several fields' programs concatenate into one, so a
 multi-resolution stack (coarse + fine) is evaluated in a single pass.
 
-:func:`evaluate` runs a program: through the fused kernel of :mod:`tdfields.kernels` where one applies, else
-through :func:`evaluate_reference`, the pure-PyTorch oracle (any-order derivatives, ``torch.compile``-able).
+:func:`evaluate_reference` runs a program with plain PyTorch ops: the oracle (any-order derivatives,
+``torch.compile``-able). :func:`tdfields.ops.evaluate` runs it through a fused kernel of :mod:`tdfields.kernels` where
+one applies and through the reference otherwise; this module imports neither.
 """
 
 from __future__ import annotations
@@ -122,18 +123,3 @@ def evaluate_reference(program: Program, factors: Sequence[torch.Tensor], coords
     if out.shape[-1] != program.out_dim:
         raise ValueError(f"program terms cover {out.shape[-1]} channels, out_dim is {program.out_dim}")
     return out
-
-
-def evaluate(program: Program, factors: Sequence[torch.Tensor], coords: torch.Tensor) -> torch.Tensor:
-    """Run ``program``: the Triton kernel where :func:`tdfields.kernels.use_triton` allows it, the numba kernel where
-    :func:`tdfields.kernels.use_fused` does, else the reference.
-
-    Args and result as :func:`evaluate_reference`; the fused path supports first derivatives only.
-    """
-    from tdfields import kernels
-
-    if kernels.use_triton(*factors, coords):
-        return kernels.triton_evaluate(program, factors, coords)
-    if kernels.use_fused(*factors, coords):
-        return kernels.fused_evaluate(program, factors, coords)
-    return evaluate_reference(program, factors, coords)

@@ -14,7 +14,8 @@ import torch
 
 from tdfields.bounds import as_aabb, grid_shape_for
 from tdfields.field import Field
-from tdfields.interpolation import interpolate, to_grid_coords
+from tdfields.interpolation import to_grid_coords
+from tdfields.ops import interpolate
 
 
 def _sample_positions(old_aabb: torch.Tensor, old_shape, new_aabb: torch.Tensor, new_shape, axes) -> torch.Tensor:

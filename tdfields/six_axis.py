@@ -7,7 +7,7 @@ from typing import ClassVar
 import torch
 
 from tdfields.field import FactorSpec, Field
-from tdfields.kernels import compose_plane
+from tdfields.ops import compose_plane
 from tdfields.program import Program, single
 
 # plane name -> (first axis, second axis); factor names are f"{plane}_{axis letter}"

@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slam.errors import SlamInputError
+
+if TYPE_CHECKING:
+    from slam.config import Config
+    from slam.scene import SceneModel
 
 
 def register(subparsers) -> None:
@@ -24,27 +29,48 @@ def register(subparsers) -> None:
     p.set_defaults(func=main)
 
 
-def main(args) -> int:
-    import numpy as np
+def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
+    """Rebuild a run from the ``checkpoint.pt`` that ``lrslam run`` writes.
+
+    Args:
+        path: the checkpoint file.
+
+    Returns:
+        ``(cfg, scene, extra)``: the run's resolved config, its scene model with the saved weights (CPU, eval mode)
+        and the checkpoint's ``extra`` record (poses ``[N, 4, 4]``, bounds in metres, intrinsics, keyframes).
+
+    Raises:
+        SlamInputError: no such file, not a tdfields checkpoint, or one without an lrslam config and poses.
+    """
     import torch
 
     import tdfields
     from slam.config import config_from_dict
-    from slam.mesher import Hull, extract_mesh, hull_points
     from slam.scene import SceneModel
 
-    path = Path(args.checkpoint)
+    path = Path(path)
     try:
         ckpt = tdfields.load(path)
     except (FileNotFoundError, ValueError) as exc:
         raise SlamInputError(str(exc)) from None
     if not ckpt.get("config") or "poses" not in ckpt.get("extra", {}):
         raise SlamInputError(f"{path}: not an lrslam run checkpoint (no config or poses)")
-    cfg = config_from_dict(ckpt["config"], upgrade=True)
+    cfg = config_from_dict(ckpt["config"], upgrade=True)  # a checkpoint of an older version may hold moved keys
     extra = ckpt["extra"]
     scene = SceneModel(cfg, torch.tensor(extra["aabb"]))
     scene.load_state_dict(ckpt["state_dict"])
     scene.eval()
+    return cfg, scene, extra
+
+
+def main(args) -> int:
+    import numpy as np
+    import torch
+
+    from slam.mesher import Hull, extract_mesh, hull_points
+
+    path = Path(args.checkpoint)
+    cfg, scene, extra = load_run_checkpoint(path)
     res = args.resolution or cfg.meshing.resolution
     if not res > 0:
         raise SlamInputError(f"--resolution must be positive, got {res}")

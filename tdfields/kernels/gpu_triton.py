@@ -1,4 +1,5 @@
-"""The Triton query kernel (opt-in: ``set_backend("triton")``), imported lazily by :mod:`tdfields.kernels`.
+"""The Triton query kernel (opt-in: ``set_backend("triton")``), imported lazily by
+:mod:`tdfields.kernels.backend`.
 
 The kernels are generated per program by :mod:`tdfields.kernels.triton_codegen`. They have been checked against
 the reference only in Triton's interpreter (``TRITON_INTERPRET=1``, on CPU tensors): this project has not yet had
@@ -10,6 +11,7 @@ from __future__ import annotations
 import torch
 import triton
 
+from tdfields.kernels.second_order import guard_second_order
 from tdfields.program import Program
 
 # points per program instance: a [BLOCK, 32] channel tile of float32 is 8 KB of registers per live value
@@ -40,7 +42,6 @@ class TritonProgram(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_out):
-        from tdfields.kernels import _guard_second_order
         from tdfields.kernels.generated import triton_kernel
 
         c, *grids = ctx.saved_tensors
@@ -61,5 +62,5 @@ class TritonProgram(torch.autograd.Function):
                                                  BLOCK=BLOCK)
             it = iter(bufs)
             grads = [next(it).view_as(g) if w else None for g, w in zip(grids, want)]
-        return (None, _guard_second_order(grad_coords.to(ctx.coords_dtype)) if want_coords else None,
-                *[_guard_second_order(g) for g in grads])
+        return (None, guard_second_order(grad_coords.to(ctx.coords_dtype)) if want_coords else None,
+                *[guard_second_order(g) for g in grads])

@@ -7,20 +7,54 @@ from slam.scene import SceneModel, parameter_counts, scene_aabb
 from slam.system import auto_bound
 
 
+def _rays(dtype=torch.float32):
+    o = torch.tensor([[0.5, 0.5, 0.05]], dtype=dtype).expand(8, 3) + torch.linspace(-0.3, 0.3, 8, dtype=dtype)[:, None]
+    d = torch.tensor([[0.1, -0.05, 1.0]], dtype=dtype).expand(8, 3)
+    return o, d, torch.full((8,), 0.3, dtype=dtype)
+
+
+def _depth(model, rays) -> torch.Tensor:
+    o, d, D = rays
+    out = render_rays(o, d, D, model.sdf, model.rgb, model.beta, 0.06, 8, 4, model.aabb, perturb=False)
+    return out.depth.sum()
+
+
 @pytest.mark.parametrize("rep", REPRESENTATIONS)
 def test_every_representation_builds_and_renders(rep):
+    """Each representation renders, and the rendered depth's gradient reaches exactly the parameters it depends on
+    (geometry, at every level, the SDF decoder and beta; never appearance or the colour decoder) with the values
+    central differences give."""
     cfg = load_config("synthetic", [f"representation={rep}", "bound=[[0,1],[0,1],[0,1]]"])
     torch.manual_seed(0)
     model = SceneModel(cfg, scene_aabb(cfg.scene.bound, 0.24))
     counts = parameter_counts(model)
     assert counts["total"] == sum(p.numel() for p in model.parameters())
     assert counts["decoders"] == 1329 + 1363 + 1
-    o = torch.full((8, 3), 0.5)
-    d = torch.tensor([[0.0, 0.0, 1.0]]).expand(8, 3)
-    out = render_rays(o, d, torch.full((8,), 0.3), model.sdf, model.rgb, model.beta, 0.06, 8, 4, model.aabb)
-    assert out.depth.shape == (8,) and torch.isfinite(out.color).all()
-    out.depth.sum().backward()
-    assert model.fields["geometry"].levels[1] is not None
+    assert counts["geometry"] == model.fields["geometry"].num_parameters() > 0
+    model = model.double()  # float64: the finite differences below resolve 1e-7 relative changes
+    rays = _rays(torch.float64)
+    depth = _depth(model, rays)
+    assert torch.isfinite(depth)
+    depth.backward()
+    grads = {name: p.grad for name, p in model.named_parameters()}
+    assert {n.split(".")[0] for n in grads} == {"fields", "sdf_decoder", "rgb_decoder", "beta"}
+    for name, g in grads.items():
+        if name.startswith(("fields.appearance.", "rgb_decoder.")):
+            assert g is None, name
+        else:
+            assert g is not None and bool(g.abs().sum() > 0), name
+    assert {n.split(".")[3] for n in grads if n.startswith("fields.geometry.")} == {"0", "1"}  # both levels
+    fine = next(p for n, p in model.named_parameters() if n.startswith("fields.geometry.levels.1."))
+    checks = [(model.beta, ()), (fine, tuple(int(i) for i in (fine.grad.abs() == fine.grad.abs().max()).nonzero()[0]))]
+    with torch.no_grad():
+        for p, idx in checks:
+            eps = 1e-6 * max(1.0, abs(float(p[idx])))
+            p[idx] += eps
+            up = float(_depth(model, rays))
+            p[idx] -= 2 * eps
+            down = float(_depth(model, rays))
+            p[idx] += eps
+            assert (up - down) / (2 * eps) == pytest.approx(float(p.grad[idx]), rel=1e-5, abs=1e-9)
 
 
 def test_tracking_freezes_scene_gradients():

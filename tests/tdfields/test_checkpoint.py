@@ -26,6 +26,22 @@ def test_save_load_roundtrip(tmp_path):
     assert h2["appearance"].grid_shape == (7, 6, 5)
 
 
+def test_load_field_reads_a_checkpoint_with_the_old_hybrid_names(tmp_path):
+    """Hybrids were saved as ``fields.<name>.*`` before they became a ModuleDict (checkpoints up to this change)."""
+    torch.manual_seed(0)
+    h = tdfields.build({"kind": "hybrid", "fields": {
+        "geometry": {"kind": "cp", "aabb": BOX, "cell_size": [0.5, 0.1], "channels": 4, "rank": 2},
+        "appearance": {"kind": "six_axis", "aabb": BOX, "cell_size": 0.2, "channels": 3, "rank": 2}}})
+    path = tdfields.save(tmp_path / "new.pt", h)
+    payload = torch.load(path, weights_only=True)
+    assert "geometry.levels.0.factors.x" in payload["state_dict"]
+    payload["state_dict"] = {f"fields.{k}": v for k, v in payload["state_dict"].items()}
+    torch.save(payload, tmp_path / "old.pt")
+    h2 = tdfields.load_field(tmp_path / "old.pt")
+    for (name, a), b in zip(h.state_dict().items(), h2.state_dict().values()):
+        assert torch.equal(a, b), name
+
+
 def test_load_errors_name_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.pt"):
         tdfields.load(tmp_path / "nope.pt")

@@ -34,21 +34,44 @@ def test_hybrid_query_all_or_by_name():
     only = h(x, names=["geometry"])
     assert list(only) == ["geometry"]
     torch.testing.assert_close(only["geometry"], both["geometry"])
-    assert h.out_dims == {"geometry": 8, "appearance": 12}
+    assert h.names() == ["geometry", "appearance"] and "geometry" in h and "colour" not in h
     with pytest.raises(KeyError, match="colour"):
         h["colour"]
+
+
+def test_hybrid_parameter_names_read_as_the_nesting():
+    names = list(hybrid().state_dict())
+    assert names[:2] == ["geometry.levels.0.aabb", "geometry.levels.0.factors.x"] and "appearance.levels.1.factors.zx_x" in names
+    with pytest.raises(ValueError, match="'spec' is taken"):
+        tdfields.Hybrid({"spec": hybrid()["geometry"]})
+
+
+def test_hybrid_loads_state_dicts_with_the_old_fields_prefix():
+    """State dicts saved when Hybrid kept its fields in a ``fields`` ModuleDict, alone or inside a model."""
+    source, target = hybrid(), hybrid()
+    for p in target.parameters():
+        torch.nn.init.zeros_(p)
+    old = {f"fields.{k}": v for k, v in source.state_dict().items()}
+    target.load_state_dict(old)  # strict: every key mapped, none left over
+    for (name, a), b in zip(source.state_dict().items(), target.state_dict().values()):
+        assert torch.equal(a, b), name
+    outer, outer2 = torch.nn.ModuleDict({"scene": source}), torch.nn.ModuleDict({"scene": hybrid()})
+    outer2.load_state_dict({f"scene.fields.{k}": v for k, v in source.state_dict().items()})
+    assert all(torch.equal(a, b) for a, b in zip(outer.state_dict().values(), outer2.state_dict().values()))
+    with pytest.raises(RuntimeError, match="Unexpected key"):
+        target.load_state_dict({**old, "fields.colour.x": torch.zeros(1)})
 
 
 def test_report_rows_and_totals():
     h = hybrid()
     model = torch.nn.ModuleDict({"scene": h, "decoder": tdfields.MLPDecoder(8, 1)})
     rep = tdfields.report(model)
-    assert [r.name for r in rep.rows] == ["scene.fields.geometry.levels.0", "scene.fields.geometry.levels.1",
-                                          "scene.fields.appearance.levels.0", "scene.fields.appearance.levels.1"]
+    assert [r.name for r in rep.rows] == ["scene.geometry.levels.0", "scene.geometry.levels.1",
+                                          "scene.appearance.levels.0", "scene.appearance.levels.1"]
     assert rep.field_parameters == h.num_parameters()
     assert rep.other_parameters == sum(p.numel() for p in model["decoder"].parameters())
     assert rep.total_parameters == sum(p.numel() for p in model.parameters())
-    assert rep.parameters_under("scene.fields.geometry") == h["geometry"].num_parameters()
+    assert rep.parameters_under("scene.geometry") == h["geometry"].num_parameters()
     assert rep.total_bytes == 4 * rep.total_parameters
     d = rep.as_dict()
     assert d["fields"][0]["kind"] == "cp" and d["fields"][3]["rank"] == 3

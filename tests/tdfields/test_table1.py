@@ -37,8 +37,8 @@ def scene_fields(bound, representation):
 def test_table1(scene, representation):
     hybrid = scene_fields(SCENES[scene], representation)
     rep = tdfields.report(hybrid)
-    geo = rep.parameters_under("fields.geometry")
-    app = rep.parameters_under("fields.appearance")
+    geo = rep.parameters_under("geometry")
+    app = rep.parameters_under("appearance")
     total = geo + app + DECODERS
     paper = PAPER[scene, representation]
     assert (round(geo / 1e6, 2), round(app / 1e6, 2), round(total / 1e6, 2)) == paper
@@ -46,11 +46,11 @@ def test_table1(scene, representation):
 
 def test_exact_counts_room0():
     eslam = tdfields.report(scene_fields(SCENES["replica/room0"], "eslam"))
-    assert eslam.parameters_under("fields.geometry") == 1_402_848
-    assert eslam.parameters_under("fields.appearance") == 5_383_904
+    assert eslam.parameters_under("geometry") == 1_402_848
+    assert eslam.parameters_under("appearance") == 5_383_904
     lr = tdfields.report(scene_fields(SCENES["replica/room0"], "lrslam"))
-    assert lr.parameters_under("fields.geometry") == 28_672
-    assert lr.parameters_under("fields.appearance") == 827_392
+    assert lr.parameters_under("geometry") == 28_672
+    assert lr.parameters_under("appearance") == 827_392
 
 
 def test_scannet_eslam_total_matches_paper_table4():

@@ -5,7 +5,9 @@ import torch
 
 import tdfields
 from tdfields import kernels
-from tdfields.interpolation import grid_coords, to_grid_coords
+from tdfields.interpolation import to_grid_coords
+from tdfields.kernels import threads
+from tdfields.ops import grid_coords
 
 BOXES = [torch.tensor([[-1.0, 2.0], [0.0, 1.5], [-0.5, 0.7]]), torch.tensor([[-1.2, 2.2], [-0.1, 1.5], [-0.5, 0.9]])]
 SHAPES = [(13, 7, 6), (101, 51, 41)]
@@ -59,7 +61,7 @@ def test_threaded_split_matches_single_thread(monkeypatch):
         return c, torch.autograd.grad(c, p, w)[0]
 
     base = run()
-    monkeypatch.setattr(kernels, "_MIN_POINTS_PER_THREAD", 1000)
+    monkeypatch.setattr(threads, "_MIN_POINTS_PER_THREAD", 1000)
     previous = torch.get_num_threads()
     torch.set_num_threads(3)
     try:

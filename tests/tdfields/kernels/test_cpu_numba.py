@@ -6,6 +6,7 @@ import torch
 import tdfields
 from tdfields import kernels
 from tdfields.interpolation import interpolate_reference
+from tdfields.kernels import fused, threads
 
 pytestmark = pytest.mark.skipif(not kernels.numba_available(), reason="numba not installed")
 
@@ -31,7 +32,7 @@ def test_values_and_gradients_match_reference(shape, dtype, tol, wants):
 
 
 def test_large_grid_uses_single_buffer_and_stays_exact(monkeypatch):
-    monkeypatch.setattr(kernels, "_MAX_BUFFER_FLOATS", 10)
+    monkeypatch.setattr(fused, "_MAX_BUFFER_FLOATS", 10)
     grid = torch.randn(20, 20, 4, dtype=torch.float64, requires_grad=True)
     coords = torch.rand(500, 2, dtype=torch.float64) * 19
     (ga,) = torch.autograd.grad(interpolate_reference(grid, coords).sum(), grid)
@@ -153,8 +154,8 @@ def test_two_pass_backward_and_thread_split_match_one_pass(monkeypatch):
             return torch.autograd.grad(y.square().sum(), [x, *f.parameters()])
 
     base = grads()
-    monkeypatch.setattr(kernels, "_SPLIT_BACKWARD_FLOATS", 0)
-    monkeypatch.setattr(kernels, "_MIN_POINTS_PER_THREAD", 1000)
+    monkeypatch.setattr(fused, "_SPLIT_BACKWARD_FLOATS", 0)
+    monkeypatch.setattr(threads, "_MIN_POINTS_PER_THREAD", 1000)
     previous = torch.get_num_threads()
     torch.set_num_threads(3)
     try:

@@ -8,6 +8,7 @@ import torch
 
 import tdfields
 from tdfields import kernels
+from tdfields.kernels import backend as backend_module
 
 pytest.importorskip("triton")
 INTERPRET = os.environ.get("TRITON_INTERPRET", "") not in ("", "0")
@@ -88,6 +89,6 @@ def test_cpu_tensors_take_it_only_when_interpreting(monkeypatch):
 
 
 def test_missing_triton_is_a_clear_error(monkeypatch):
-    monkeypatch.setitem(kernels._state, "triton", False)
+    monkeypatch.setitem(backend_module._state, "triton", False)
     with pytest.raises(RuntimeError, match="pip install triton"):
         kernels.set_backend("triton")

@@ -1,0 +1,247 @@
+"""The fused kernels' autograd glue: query programs, compose Six-axis planes and map points to grid coordinates in
+generated numba code (CPU) or Triton (GPU), with first derivatives.
+
+Each ``torch.autograd.Function`` here hands detached, contiguous tensors to a kernel that
+:mod:`tdfields.kernels.generated` compiles for the exact program, widths and dtype, splits the points over
+:mod:`tdfields.kernels.threads`, and marks its gradients with :func:`tdfields.kernels.second_order.guard_second_order`.
+The entry points check their arguments; which one runs is decided by :mod:`tdfields.ops` (and
+:func:`compose_plane` here) through :func:`tdfields.kernels.use_fused` / :func:`tdfields.kernels.use_triton`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from tdfields.kernels.backend import numba_module, triton_module, use_fused
+from tdfields.kernels.second_order import guard_second_order
+from tdfields.kernels.threads import parts_for, run, split
+from tdfields.program import Program, single
+
+# Per-thread gradient buffers are only worth it while they are small next to the work; beyond this many
+# floats in all the scatter runs in one slot.
+_MAX_BUFFER_FLOATS = 1 << 24
+# Factor tensors larger than this (floats) get their coordinate gradient and their scatter in two passes: one
+# pass touching the factors and their gradient buffers at once overflowed the last-level cache at room scale
+# (tri-plane 3 cm: 35 ms vs 14 + 13 ms in two passes, 40k points, 1 thread).
+_SPLIT_BACKWARD_FLOATS = 1 << 21
+
+
+def _dtype_name(dtype: torch.dtype) -> str:
+    return {torch.float32: "float32", torch.float64: "float64"}[dtype]
+
+
+def _sizes(program: Program, grids) -> np.ndarray:
+    sizes = np.ones((len(grids), 3), np.int64)
+    for f, (g, axes) in enumerate(zip(grids, program.factor_axes)):
+        sizes[f, : len(axes)] = g.shape[: len(axes)]
+    return sizes
+
+
+class _FusedProgram(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, program, coords, *factors):
+        from tdfields.kernels.generated import forward_kernel
+
+        dtype = factors[0].dtype
+        grids = [t.detach().contiguous() for t in factors]
+        views = [g.view(-1, g.shape[-1]).numpy() for g in grids]
+        widths = tuple(v.shape[1] for v in views)
+        c = coords.detach().to(dtype).contiguous()
+        sizes = _sizes(program, grids)
+        out = torch.empty(c.shape[1], program.out_dim, dtype=dtype)
+        kernel = forward_kernel(program, widths, _dtype_name(dtype))
+        args = (*views, sizes, c.numpy(), out.numpy())
+        run([lambda a=a, b=b: kernel(*args, a, b) for a, b in split(c.shape[1], parts_for(c.shape[1]))])
+        ctx.program = program
+        ctx.widths = widths
+        ctx.sizes = sizes
+        ctx.coords_dtype = coords.dtype
+        ctx.save_for_backward(c, *grids)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        with torch.no_grad():
+            grads = _FusedProgram._backward(ctx, grad_out)
+        return tuple(guard_second_order(g) for g in grads)
+
+    @staticmethod
+    def _backward(ctx, grad_out):
+        from tdfields.kernels.generated import backward_kernel
+
+        c, *grids = ctx.saved_tensors
+        want_coords = bool(ctx.needs_input_grad[1])
+        want = tuple(bool(w) for w in ctx.needs_input_grad[2:])
+        if not want_coords and not any(want):
+            return (None, None, *[None] * len(grids))
+        dtype = grids[0].dtype
+        n_points = c.shape[1]
+        total = sum(g.numel() for g, w in zip(grids, want) if w)
+        parts = parts_for(n_points)
+        # one scatter buffer set per thread pays off while it stays small next to the work; else one serial pass
+        if total * parts > _MAX_BUFFER_FLOATS:
+            parts = 1
+        rows = [(g.numel() // g.shape[-1], g.shape[-1]) for g in grids]
+        buffers = [[torch.zeros(rows[f], dtype=dtype) for f in range(len(grids)) if want[f]] for _ in range(parts)]
+        grad_coords = torch.zeros_like(c) if want_coords else torch.zeros((1, 1, 3), dtype=dtype)
+        views = [g.view(-1, g.shape[-1]).numpy() for g in grids]
+        go = grad_out.detach().to(dtype).contiguous()
+        chans = np.asarray([ctx.widths[t[0]] // k for t, k in zip(ctx.program.terms, ctx.program.ranks)], np.int64)
+        common = (*views, ctx.sizes, chans, c.numpy(), go.numpy())
+        passes = [(want, want_coords)]
+        if want_coords and any(want) and sum(g.numel() for g in grids) > _SPLIT_BACKWARD_FLOATS:
+            passes = [(tuple(False for _ in want), True), (want, False)]
+        for want_f, want_c in passes:
+            kernel = backward_kernel(ctx.program, ctx.widths, want_f, want_c, _dtype_name(dtype))
+            run([lambda a=a, b=b, bufs=bufs: kernel(*common, *[t.numpy() for t in bufs] if any(want_f) else (),
+                                                    grad_coords.numpy(), a, b)
+                 for (a, b), bufs in zip(split(n_points, parts), buffers)])
+        summed = iter([sum(bs[1:], bs[0]) if parts > 1 else bs[0] for bs in zip(*buffers)])
+        grads = [next(summed).view_as(g) if w else None for g, w in zip(grids, want)]
+        return (None, grad_coords.to(ctx.coords_dtype) if want_coords else None, *grads)
+
+
+def fused_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Tensor:
+    """Fused equivalent of :func:`tdfields.program.evaluate_reference` (CPU, first derivatives only).
+
+    Args:
+        program: the query structure (at most 3 factors per term).
+        factors: one channels-last tensor per factor.
+        coords: ``[L, N, 3]`` clamped grid coordinates, one set per level.
+
+    Returns:
+        ``[N, program.out_dim]``.
+    """
+    if numba_module() is None:
+        raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
+    program.check(factors)
+    if coords.dim() != 3 or coords.shape[0] != program.num_levels or coords.shape[2] != 3:
+        raise ValueError(f"coords must be [{program.num_levels}, N, 3], got {tuple(coords.shape)}")
+    if max(len(t) for t in program.terms) > 3:
+        raise ValueError("the fused kernel multiplies at most 3 factors per term; use set_backend('torch')")
+    return _FusedProgram.apply(program, coords, *factors)
+
+
+def triton_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Tensor:
+    """Triton equivalent of :func:`tdfields.program.evaluate_reference` (first derivatives only).
+
+    Same arguments and result as :func:`fused_evaluate`; tensors on one CUDA device (or the CPU when
+    interpreting).
+    """
+    module = triton_module()
+    if module is None:
+        raise RuntimeError("the Triton kernel needs triton; pip install triton, or set_backend('torch')")
+    program.check(factors)
+    if coords.dim() != 3 or coords.shape[0] != program.num_levels or coords.shape[2] != 3:
+        raise ValueError(f"coords must be [{program.num_levels}, N, 3], got {tuple(coords.shape)}")
+    if max(len(t) for t in program.terms) > 3:
+        raise ValueError("the Triton kernel multiplies at most 3 factors per term; use set_backend('torch')")
+    return module.TritonProgram.apply(program, coords, *factors)
+
+
+class _FusedCompose(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, u, v, rank):
+        from tdfields.kernels.generated import compose_kernels
+
+        uc, vc = u.detach().contiguous(), v.detach().contiguous()
+        channels = uc.shape[1] // rank
+        plane = torch.empty(uc.shape[0], vc.shape[0], channels, dtype=uc.dtype)
+        mod = compose_kernels(rank, channels, _dtype_name(uc.dtype))
+        flat = plane.view(-1, channels).numpy()
+        run([lambda a=a, b=b: mod.compose_forward(uc.numpy(), vc.numpy(), flat, a, b)
+             for a, b in split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))])
+        ctx.save_for_backward(uc, vc)
+        ctx.rank = rank
+        return plane
+
+    @staticmethod
+    def backward(ctx, grad_plane):
+        from tdfields.kernels.generated import compose_kernels
+
+        uc, vc = ctx.saved_tensors
+        want_u, want_v = bool(ctx.needs_input_grad[0]), bool(ctx.needs_input_grad[1])
+        with torch.no_grad():
+            gp = grad_plane.detach().to(uc.dtype).contiguous()
+            mod = compose_kernels(ctx.rank, gp.shape[-1], _dtype_name(uc.dtype))
+            flat = gp.view(-1, gp.shape[-1]).numpy()
+            ranges = split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))
+            gu = torch.empty_like(uc) if want_u else torch.zeros((1, 1), dtype=uc.dtype)
+            gvs = [torch.zeros_like(vc) if want_v else torch.zeros((1, 1), dtype=uc.dtype) for _ in ranges]
+            run([lambda a=a, b=b, gv=gv: mod.compose_backward(uc.numpy(), vc.numpy(), flat, gu.numpy(), gv.numpy(),
+                                                              want_u, want_v, a, b)
+                 for (a, b), gv in zip(ranges, gvs)])
+            gv = sum(gvs[1:], gvs[0]) if want_v else None
+        return guard_second_order(gu if want_u else None), guard_second_order(gv), None
+
+
+def compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
+    """Rank-k plane from two line factors: ``u [n_a, k*C]``, ``v [n_b, k*C]`` -> ``[n_a, n_b, C]``,
+    ``P[a, b, c] = sum_r u[a, r*C + c] v[b, r*C + c]`` (rank-major, channel-minor factors).
+
+    The fused kernel where :func:`use_fused` allows it, else ``torch.einsum`` (the reference).
+    """
+    if use_fused(u, v):
+        return _FusedCompose.apply(u, v, rank)
+    return torch.einsum("akc,bkc->abc", u.reshape(u.shape[0], rank, -1), v.reshape(v.shape[0], rank, -1))
+
+
+class _FusedGridCoords(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, points, lo, extent, top):
+        from tdfields.kernels.coords import grid_coords_forward
+
+        p = points.detach().contiguous()
+        out = torch.empty(lo.shape[0], p.shape[0], 3, dtype=p.dtype)
+        args = (p.numpy(), lo.numpy(), extent.numpy(), top.numpy(), out.numpy())
+        run([lambda a=a, b=b: grid_coords_forward(*args, a, b) for a, b in split(p.shape[0], parts_for(p.shape[0]))])
+        ctx.save_for_backward(p, lo, extent, top)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad):
+        from tdfields.kernels.coords import grid_coords_backward
+
+        if not ctx.needs_input_grad[0]:
+            return None, None, None, None
+        p, lo, extent, top = ctx.saved_tensors
+        with torch.no_grad():
+            g = grad.detach().to(p.dtype).contiguous()
+            out = torch.empty_like(p)
+            args = (p.numpy(), lo.numpy(), extent.numpy(), top.numpy(), g.numpy(), out.numpy())
+            run([lambda a=a, b=b: grid_coords_backward(*args, a, b)
+                 for a, b in split(p.shape[0], parts_for(p.shape[0]))])
+        return guard_second_order(out), None, None, None
+
+
+def fused_grid_coords(points: torch.Tensor, boxes, shapes) -> torch.Tensor:
+    """Fused equivalent of stacking :func:`tdfields.to_grid_coords` over levels (first derivatives only).
+
+    Args:
+        points: ``[N, 3]`` world metres, float32 or float64 on the CPU (differentiable).
+        boxes: one ``(3, 2)`` box per level, metres.
+        shapes: one ``(n_x, n_y, n_z)`` per level.
+
+    Returns:
+        ``[L, N, 3]`` clamped grid coordinates, dtype of ``points``.
+    """
+    if numba_module() is None:
+        raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
+    dtype = points.dtype
+    box = torch.stack([b.detach().to(device="cpu", dtype=dtype) for b in boxes])
+    lo = box[:, :, 0].contiguous()
+    extent = (box[:, :, 1] - box[:, :, 0]).contiguous()
+    top = torch.as_tensor([[n - 1 for n in s] for s in shapes], dtype=dtype)
+    return _FusedGridCoords.apply(points, lo, extent, top)
+
+
+def fused_interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+    """Fused equivalent of :func:`tdfields.interpolation.interpolate_reference` (first derivatives only).
+
+    ``grid [s_0, ..., s_{d-1}, F]`` and ``coords [N, d]`` -> ``[N, F]``: a one-factor, one-term program.
+    """
+    d = coords.shape[-1]
+    program = single([tuple(range(d))], [(0,)], [1], grid.shape[-1])
+    padded = torch.cat((coords, coords.new_zeros(coords.shape[0], 3 - d)), -1) if d < 3 else coords
+    return fused_evaluate(program, [grid], padded[None])

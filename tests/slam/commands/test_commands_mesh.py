@@ -1,0 +1,63 @@
+"""``lrslam mesh``: a run checkpoint, also one written with the scene's earlier parameter names, rebuilds the run."""
+
+import pytest
+import torch
+
+import tdfields
+from slam.commands.mesh import load_run_checkpoint
+from slam.config import load_config
+from slam.errors import SlamInputError
+from slam.scene import SceneModel, scene_aabb
+
+
+@pytest.fixture()
+def checkpoint(tiny_seq, tmp_path):
+    """What ``lrslam run`` saves for a 4-frame run on the tiny sequence (weights untrained, poses exact)."""
+    from slam.data import load_dataset
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", "representation=sa_cp", "meshing.resolution=0.1"])
+    ds = load_dataset(tiny_seq)
+    aabb = scene_aabb(cfg.scene.bound, cfg.scene.bound_dividable)
+    torch.manual_seed(0)
+    scene = SceneModel(cfg, aabb)
+    k = ds.intrinsics
+    extra = {"poses": ds.gt_poses[:4], "frame_indices": [0, 1, 2, 3], "timestamps": ds.timestamps[:4],
+             "bound": cfg.scene.bound, "marching_cubes_bound": cfg.scene.bound, "aabb": aabb.tolist(),
+             "intrinsics": k.as_dict(), "keyframe_indices": [0], "keyframe_poses": ds.gt_poses[:1]}
+    path = tdfields.save(tmp_path / "checkpoint.pt", scene, config=cfg.to_dict(), extra=extra)
+    return path, cfg, scene
+
+
+def test_checkpoint_rebuilds_the_config_and_the_weights(checkpoint):
+    path, cfg, scene = checkpoint
+    cfg2, scene2, extra = load_run_checkpoint(path)
+    assert cfg2 == cfg
+    assert list(scene2.state_dict()) == list(scene.state_dict())
+    assert all(torch.equal(a, b) for a, b in zip(scene.state_dict().values(), scene2.state_dict().values()))
+    assert extra["frame_indices"] == [0, 1, 2, 3] and not scene2.training
+
+
+def test_checkpoint_with_the_old_parameter_names_still_loads(checkpoint, tmp_path):
+    """Runs saved the scene as fields.fields.geometry.* before tdfields.Hybrid became a ModuleDict."""
+    path, _, scene = checkpoint
+    payload = torch.load(path, weights_only=True)
+    payload["state_dict"] = {k.replace("fields.", "fields.fields.", 1) if k.startswith("fields.") else k: v
+                             for k, v in payload["state_dict"].items()}
+    assert any(k.startswith("fields.fields.geometry.levels.1.factors.") for k in payload["state_dict"])
+    old = tmp_path / "old.pt"
+    torch.save(payload, old)
+    _, scene2, _ = load_run_checkpoint(old)
+    assert all(torch.equal(a, b) for a, b in zip(scene.state_dict().values(), scene2.state_dict().values()))
+    from slam.cli import main
+
+    assert main(["mesh", str(old), "--no-cull", "--out", str(tmp_path / "m.ply")]) == 0
+    assert (tmp_path / "m.ply").is_file()
+
+
+def test_not_a_run_checkpoint_is_an_input_error(tmp_path):
+    path = tdfields.save(tmp_path / "field.pt", tdfields.build(
+        {"kind": "cp", "aabb": [[0, 1], [0, 1], [0, 1]], "cell_size": 0.5, "channels": 2, "rank": 1}))
+    with pytest.raises(SlamInputError, match="not an lrslam run checkpoint"):
+        load_run_checkpoint(path)
+    with pytest.raises(SlamInputError, match="checkpoint not found"):
+        load_run_checkpoint(tmp_path / "missing.pt")
