@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from slam.data.base import RGBDDataset
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
-from slam.eval.trajectory import poses_from_tum
+from slam.geometry import poses_from_tum
 
 __all__ = ["TUMDataset", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "read_tum_list"]
 
