@@ -14,6 +14,7 @@ from slam.data.loader import detect_layout, load_dataset
 from slam.data.replica import ReplicaDataset
 from slam.data.scannet import ScanNetDataset
 from slam.data.tum import TUMDataset
+from slam.data.tum_writer import TUMWriter
 from slam.data.types import Frame, Intrinsics
 
 __all__ = [
@@ -22,6 +23,7 @@ __all__ = [
     "RGBDDataset",
     "ReplicaDataset",
     "TUMDataset",
+    "TUMWriter",
     "ScanNetDataset",
     "load_dataset",
     "detect_layout",
