@@ -21,7 +21,8 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "overrides are dotted key=value pairs, e.g. tracking.iters=20 representation=eslam bound=auto\n"
-            "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu, ..."
+            "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu,\n"
+            "         7scenes, ..."
         ),
     )
     p.add_argument("--config", default="synthetic", help="preset name or YAML file (default: synthetic)")

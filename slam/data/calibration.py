@@ -151,7 +151,8 @@ def write_calibration(path: str | Path, intrinsics: Intrinsics, distortion: Sequ
     import yaml
 
     data: dict[str, Any] = {"fx": float(intrinsics.fx), "fy": float(intrinsics.fy), "cx": float(intrinsics.cx),
-                            "cy": float(intrinsics.cy), "width": int(intrinsics.width), "height": int(intrinsics.height)}
+                            "cy": float(intrinsics.cy), "width": int(intrinsics.width),
+                            "height": int(intrinsics.height)}
     if distortion is not None and any(distortion):
         data["distortion"] = [float(d) for d in distortion]
     if depth_scale is not None:

@@ -86,7 +86,8 @@ def test_writer_refuses_bad_frames_and_an_existing_recording(tmp_path):
     rec = TUMWriter(tmp_path / "s", K)
     with pytest.raises(SlamInputError, match=r"colour frame must be \[48, 64, 3\] uint8, got \[48, 64, 4\] uint8"):
         rec.add(0.0, np.zeros((48, 64, 4), np.uint8), np.zeros((48, 64), np.uint16))
-    with pytest.raises(SlamInputError, match=r"depth frame must be \[48, 64\] \(registered to colour\), got \[24, 32\]"):
+    with pytest.raises(SlamInputError, match=r"depth frame must be \[48, 64\] \(registered to colour\), "
+                                             r"got \[24, 32\]"):
         rec.add(0.0, np.zeros((48, 64, 3), np.uint8), np.zeros((24, 32), np.uint16))
     rec.add(1.0, np.zeros((48, 64, 3), np.uint8), np.full((48, 64), 1234, np.uint16))
     with pytest.raises(SlamInputError, match="timestamps must increase: 0.500000 after 1.000000"):
@@ -135,7 +136,8 @@ def test_precedence_options_over_calibration_file_over_folder_name(tmp_path):
     from slam.system import load_data
 
     cfg = load_config("tum", [f"data.path={root}", "data.options.intrinsics={fx: 45, fy: 45, cx: 31.5, cy: 23.5}",
-                              "data.options.crop_size=null", "data.options.crop_edge=0", "data.options.depth_scale=4000"])
+                              "data.options.crop_size=null", "data.options.crop_edge=0",
+                              "data.options.depth_scale=4000"])
     ds = load_data(cfg)
     assert ds.intrinsics == Intrinsics(45.0, 45.0, 31.5, 23.5, 48, 64) and ds.depth_scale == 4000.0
 
