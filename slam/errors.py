@@ -19,3 +19,6 @@ class MissingDependencyError(ImportError):
 
         self.missing = list(missing)
         super().__init__(missing_message(self.missing), name=self.missing[0] if self.missing else None)
+
+    def __reduce__(self):  # ImportError pickles its message as the first argument; ours is the package list
+        return type(self), (self.missing,)

@@ -78,6 +78,10 @@ def test_error_is_an_import_error_naming_the_package():
     err = MissingDependencyError(["tqdm"])
     assert isinstance(err, ImportError) and err.name == "tqdm" and err.missing == ["tqdm"]
     assert "\n" not in str(err) and COMMAND in str(err)
+    import pickle
+
+    back = pickle.loads(pickle.dumps(err))  # e.g. from a worker process
+    assert type(back) is MissingDependencyError and back.missing == ["tqdm"] and str(back) == str(err)
 
 
 @pytest.mark.parametrize(("argv0", "orig", "expected"), [
