@@ -10,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-from slam import __version__
+from slam import __version__, _deps
 from slam.errors import SlamInputError
 
 # module path -> it defines register(subparsers); the order is the order in --help
@@ -55,6 +55,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # before any sub-command module imports them: without the slam extra, one line and exit 2
+    missing = _deps.missing_dependencies()
+    if missing:
+        print(f"lrslam: error: {_deps.missing_message(missing)}", file=sys.stderr)
+        return 2
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -8,3 +8,17 @@ and exit code 2 instead of a traceback.
 
 class SlamInputError(ValueError):
     """Bad user input: the message names the offending file, key or value."""
+
+
+class MissingDependencyError(ImportError):
+    """The SLAM client's dependencies (the ``slam`` extra) are not installed; the message is one line naming
+    the missing packages and the install command (see :mod:`slam._deps`)."""
+
+    def __init__(self, missing: list[str]):
+        from slam._deps import missing_message
+
+        self.missing = list(missing)
+        super().__init__(missing_message(self.missing), name=self.missing[0] if self.missing else None)
+
+    def __reduce__(self):  # ImportError pickles its message as the first argument; ours is the package list
+        return type(self), (self.missing,)

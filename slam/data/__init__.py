@@ -5,15 +5,18 @@ float32 metres (0 = invalid), a ``[4, 4]`` camera-to-world ground-truth pose in 
 convention** (x right, y down, z forward; no axis flips anywhere), :class:`Intrinsics`, a timestamp in
 seconds and the frame index. See ``docs/data.md``.
 
-Datasets: ``len(ds)``, ``ds[i]``, ``ds.intrinsics``, ``ds.timestamps``, ``ds.gt_poses [N, 4, 4]``,
-``ds.name``, ``ds.gt_mesh_path`` (Path or None).
+Sources: Replica (and the synthetic room), TUM RGB-D (and TUM-format recordings of any camera,
+:class:`TUMWriter`), ScanNet, 7-Scenes. Datasets: ``len(ds)``, ``ds[i]``, ``ds.intrinsics``, ``ds.timestamps``,
+``ds.gt_poses [N, 4, 4]``, ``ds.name``, ``ds.gt_mesh_path`` (Path or None).
 """
 
 from slam.data.base import RGBDDataset
 from slam.data.loader import detect_layout, load_dataset
 from slam.data.replica import ReplicaDataset
 from slam.data.scannet import ScanNetDataset
+from slam.data.sevenscenes import SevenScenesDataset
 from slam.data.tum import TUMDataset
+from slam.data.tum_writer import TUMWriter
 from slam.data.types import Frame, Intrinsics
 
 __all__ = [
@@ -22,7 +25,9 @@ __all__ = [
     "RGBDDataset",
     "ReplicaDataset",
     "TUMDataset",
+    "TUMWriter",
     "ScanNetDataset",
+    "SevenScenesDataset",
     "load_dataset",
     "detect_layout",
     "REFERENCE_OPTIONS",

@@ -6,6 +6,8 @@
     <seq>/groundtruth.txt           "timestamp tx ty tz qx qy qz qw" camera-to-world (OpenCV camera axes)
     <seq>/associations.txt          optional "rgb_ts rgb_file depth_ts depth_file" (TUM associate.py output)
     <seq>/rgb/*.png, depth/*.png    8-bit RGB; 16-bit depth, metres = value / 5000, 0 = no measurement
+    <seq>/calibration.yaml          optional: the camera of a recording made with another sensor
+                                    (slam.data.calibration; what slam.data.tum_writer writes)
 
 Association (reference loaders): every rgb frame takes the nearest depth frame and the ground truth at its
 timestamp, and is kept only if both are within ``max_dt`` (0.08 s); then frames closer than ``min_dt``
@@ -16,6 +18,11 @@ relative to the first kept frame (frame 0 = identity), as the reference configs'
 
 Depth is registered to the colour camera by the Kinect driver, so one camera model serves both; colour is
 undistorted with the sequence's Brown-Conrady coefficients (depth is not), as the reference does.
+
+The camera, in order of precedence: explicit options (``intrinsics``, ``distortion``, ``depth_scale``, or a
+named ``camera``) > the folder's ``calibration.yaml`` > the freiburg1/2/3 calibration guessed from the folder
+name (else the ROS default). A folder without ``groundtruth.txt`` (a recording of one's own) loads with
+unknown (all-NaN) poses: SLAM runs, ATE is not computed.
 """
 
 from __future__ import annotations
@@ -28,6 +35,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from slam.data.base import RGBDDataset
+from slam.data.calibration import (
+    CALIBRATION_FILE, parse_depth_scale, parse_distortion, parse_intrinsics, read_calibration,
+)
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
 from slam.geometry import poses_from_tum
@@ -136,6 +146,19 @@ def _gt_at(gt_ts: np.ndarray, gt_rows: np.ndarray, query: np.ndarray, max_dt: fl
     return poses, ok
 
 
+def _image_size(path: Path) -> tuple[int, int]:
+    """``(height, width)`` of an image from its header; SlamInputError naming it if unreadable."""
+    import imageio.v3 as iio
+
+    if not path.is_file():
+        raise SlamInputError(f"{path}: image file not found")
+    try:
+        shape = iio.improps(path, plugin="pillow").shape
+    except Exception as exc:  # imageio raises many types for corrupt files
+        raise SlamInputError(f"{path}: cannot read depth image ({type(exc).__name__}: {exc})") from None
+    return int(shape[0]), int(shape[1])
+
+
 def _camera_for(root: Path) -> str:
     name = root.resolve().name.lower()
     for key, pat in (("fr1", r"(freiburg1|fr1)"), ("fr2", r"(freiburg2|fr2)"), ("fr3", r"(freiburg3|fr3)")):
@@ -149,9 +172,13 @@ class TUMDataset(RGBDDataset):
 
     Args:
         path: the sequence folder.
-        camera: ``"auto"`` (from the folder name: freiburg1/fr1, fr2, fr3, else the ROS default),
-            or a key of :data:`TUM_CAMERAS`.
-        intrinsics, distortion: explicit calibration on the raw images (override ``camera``).
+        camera: ``"auto"`` (the folder's ``calibration.yaml`` if any, else from the folder name: freiburg1/fr1,
+            fr2, fr3, else the ROS default), or a key of :data:`TUM_CAMERAS`.
+        intrinsics: explicit camera on the raw images, overriding ``camera`` and the calibration file: an
+            :class:`Intrinsics` or a mapping ``{fx, fy, cx, cy[, width, height]}`` (pixels; the size defaults to
+            the depth images').
+        distortion: ``(k1, k2, p1, p2[, k3])``; default: the chosen camera's (none for ``intrinsics``).
+        calibration: a calibration file (relative to the folder) instead of ``<folder>/calibration.yaml``.
         association: ``"auto"`` (``associations.txt`` if present, else timestamps), ``"file"`` or
             ``"timestamps"``.
         max_dt: seconds; largest rgb-depth and rgb-ground-truth gap accepted (reference 0.08).
@@ -159,8 +186,11 @@ class TUMDataset(RGBDDataset):
             association only).
         interpolate_gt: interpolate ground truth at the rgb timestamp (else nearest sample).
         relative_to_first: express poses relative to the first kept frame (reference behaviour).
-        depth_scale: raw / metres (5000).
+        depth_scale: raw / metres; default the calibration file's, else 5000 (TUM's Kinect).
         **options: crop_size, crop_edge, undistort, stride, max_frames (see :class:`RGBDDataset`).
+
+    Attributes: ``camera`` (``fr1``/``fr2``/``fr3``/``default``, ``custom`` for the ``intrinsics`` option, ``file``
+    for a calibration file), ``calibration_file`` (Path or None), ``gt_file`` (Path or None).
     """
 
     def __init__(
@@ -168,14 +198,15 @@ class TUMDataset(RGBDDataset):
         path,
         *,
         camera: str = "auto",
-        intrinsics: Intrinsics | None = None,
+        intrinsics: Intrinsics | dict | None = None,
         distortion=None,
+        calibration: str | Path | None = None,
         association: str = "auto",
         max_dt: float = 0.08,
         min_dt: float = 1.0 / 32.0,
         interpolate_gt: bool = True,
         relative_to_first: bool = True,
-        depth_scale: float = TUM_DEPTH_SCALE,
+        depth_scale: float | None = None,
         **options,
     ) -> None:
         root = Path(path)
@@ -207,13 +238,17 @@ class TUMDataset(RGBDDataset):
             source = root / "depth.txt"
 
         gt_path = next((root / n for n in ("groundtruth.txt", "pose.txt") if (root / n).exists()), None)
-        if gt_path is None:
-            raise SlamInputError(f"{root}: no groundtruth.txt (or pose.txt)")
-        gt_ts, gt_rows = _read_groundtruth(gt_path)
-        poses, has_gt = _gt_at(gt_ts, gt_rows, rgb_ts, max_dt, interpolate_gt)
-        if not has_gt.all():
-            log.info("%s: %d of %d frames have no ground truth within %.3f s and are dropped",
-                     root, int((~has_gt).sum()), len(has_gt), max_dt)
+        if gt_path is not None:
+            gt_ts, gt_rows = _read_groundtruth(gt_path)
+            poses, has_gt = _gt_at(gt_ts, gt_rows, rgb_ts, max_dt, interpolate_gt)
+            if not has_gt.all():
+                log.info("%s: %d of %d frames have no ground truth within %.3f s and are dropped",
+                         root, int((~has_gt).sum()), len(has_gt), max_dt)
+        else:
+            # a recording of one's own: SLAM needs no ground truth, only the evaluation does
+            log.warning("%s: no groundtruth.txt (or pose.txt): poses unknown, ATE will not be computed", root)
+            poses = np.full((len(rgb_ts), 4, 4), np.nan)
+            has_gt = np.ones(len(rgb_ts), dtype=bool)
         keep = has_gt.copy()
         if not use_file and min_dt > 0:
             last = -np.inf
@@ -230,34 +265,60 @@ class TUMDataset(RGBDDataset):
             )
         idx = np.flatnonzero(keep)
         poses = poses[idx]
-        if relative_to_first:
+        if relative_to_first and gt_path is not None:
             poses = np.linalg.inv(poses[0]) @ poses
         self.gt_file = gt_path
 
-        if intrinsics is None:
-            key = _camera_for(root) if camera == "auto" else camera
-            if key not in TUM_CAMERAS:
-                raise SlamInputError(f"unknown TUM camera {camera!r}; expected auto or one of {list(TUM_CAMERAS)}")
-            if key == "default":
-                log.warning("%s: sensor not recognised from the folder name; using the ROS default camera", root)
-            intrinsics, cam_dist = TUM_CAMERAS[key]
-            if distortion is None:
-                distortion = cam_dist
-            self.camera = key
-        else:
-            self.camera = "custom"
+        depth_paths = [root / depth_files[k] for k in idx]
+        intrinsics, distortion, depth_scale = self._camera(root, depth_paths[0], camera, intrinsics, distortion,
+                                                           calibration, depth_scale)
 
         self._setup(
             root=root,
             color_paths=[root / rgb_files[k] for k in idx],
-            depth_paths=[root / depth_files[k] for k in idx],
+            depth_paths=depth_paths,
             poses=poses,
             timestamps=rgb_ts[idx],
             intrinsics=intrinsics,
             depth_scale=depth_scale,
             distortion=distortion,
+            allow_invalid_poses=gt_path is None,
+            pose_source=gt_path,
             **options,
         )
+
+    def _camera(self, root: Path, depth0: Path, camera, intrinsics, distortion, calibration, depth_scale):
+        """(intrinsics, distortion, depth scale): explicit options > calibration file > folder-name guess."""
+        calib_path = root / (calibration if calibration is not None else CALIBRATION_FILE)
+        calib = read_calibration(calib_path) if calibration is not None or calib_path.is_file() else None
+        self.calibration_file = None
+        size = _image_size(depth0)
+        if intrinsics is not None:
+            intr = parse_intrinsics(intrinsics, f"{root}: option 'intrinsics'", image_size=size)
+            cam_dist, self.camera, where = None, "custom", "option 'intrinsics'"
+        elif camera != "auto" or calib is None:
+            key = _camera_for(root) if camera == "auto" else camera
+            if key not in TUM_CAMERAS:
+                raise SlamInputError(f"unknown TUM camera {camera!r}; expected auto or one of {list(TUM_CAMERAS)}")
+            intr, cam_dist = TUM_CAMERAS[key]
+            self.camera, where = key, f"the {key} calibration; another camera needs {root / CALIBRATION_FILE}"
+            if key == "default" and size == (intr.height, intr.width):
+                log.warning("%s: sensor not recognised from the folder name and no %s; using the ROS default camera",
+                            root, CALIBRATION_FILE)
+        else:
+            intr, cam_dist = calib.intrinsics, calib.distortion
+            self.camera, where, self.calibration_file = "file", f"{calib.path}, keys height and width", calib.path
+        if size != (intr.height, intr.width):
+            raise SlamInputError(f"{depth0}: depth image is {size[0]}x{size[1]}, expected {intr.height}x{intr.width} "
+                                 f"(the image size in {where})")
+        dist = cam_dist if distortion is None else parse_distortion(distortion, f"{root}: option 'distortion'")
+        if depth_scale is not None:
+            scale = parse_depth_scale(depth_scale, f"{root}: option 'depth_scale'")
+        elif calib is not None and calib.depth_scale is not None:
+            scale = calib.depth_scale
+        else:
+            scale = TUM_DEPTH_SCALE
+        return intr, dist, scale
 
     @staticmethod
     def _read_associations(path: Path):

@@ -127,8 +127,11 @@ def test_tiny_tum_layout(tmp_path):
     # GT x = 0.1 * (t - t0), interpolated at the rgb time
     assert float(f.pose[0, 3]) == pytest.approx(0.1 * 2 / 30, abs=1e-5)
     assert float(f.pose[2, 3]) == pytest.approx(1.0)
-    auto = TUMDataset(root, max_frames=3)
-    assert auto.camera == "fr3" and auto.distortion is None and len(auto) == 3
+    # the folder name says fr3, whose calibration is for 640x480: the 32x24 images need their own camera
+    with pytest.raises(SlamInputError, match=r"depth/1000.010000.png: depth image is 24x32, expected 480x640 "
+                                             r"\(the image size in the fr3 calibration; another camera needs "
+                                             r".*rgbd_dataset_freiburg3_tiny/calibration.yaml\)"):
+        TUMDataset(root, max_frames=3)
 
 
 def test_tum_bad_inputs(tmp_path):
