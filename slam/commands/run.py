@@ -28,10 +28,8 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "overrides are dotted key=value pairs, e.g. tracking.iters=20 representation=eslam bound=auto\n"
-            "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu,
-"
-            "         7scenes, ...
-"
+            "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu,\n"
+            "         7scenes, ...\n"
             "resume an interrupted run:  lrslam run --resume runs/rpy"
         ),
     )
