@@ -73,6 +73,7 @@ def run_state(system) -> dict:
         "rng": {"torch": torch.get_rng_state(), "numpy": _numpy_state(), "gen": system.gen.get_state(),
                 "map_gen": system.map_gen.get_state()},
         "pending": pending,
+        "applied_any": bool(mapper._applied_any),
         "track_scene": ({k: v.detach().cpu() for k, v in mapper.track_scene.state_dict().items()}
                         if mapper.parallel else None),
         "fingerprint": fingerprint(system),
@@ -132,6 +133,7 @@ def restore(system, ckpt: dict) -> int:
         system.keyframes.add(Keyframe(kf["k"], frame.color.cpu(), frame.depth.cpu(), kf["pose"].clone()))
     if system.state.prev_depth_k >= 0:
         system._prev_depth = system.frames.get(system.state.prev_depth_k).depth
+    system.mapper._applied_any = bool(run["applied_any"])
     for p in run["pending"]:
         job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])
         r = p["result"]

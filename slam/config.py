@@ -86,8 +86,8 @@ class DataConfig:
     """Dataset: ``kind`` is passed to ``slam.data.load_dataset`` (``auto``, ``replica``, ``tum``, ``scannet``...);
     ``path`` null means the bundled synthetic sequence. ``options`` are loader options (crop_edge, crop_size,
     undistort, ...). ``max_frames`` and ``stride`` subsample the sequence. A frame that cannot be read (missing,
-    truncated, wrong size) is skipped and listed in ``events``; more than ``max_bad_fraction`` of the frames
-    read so far being bad stops the run with an error (after its outputs are written)."""
+    truncated, wrong size) is skipped and listed in ``events``; once more than ``max_bad_fraction`` of the
+    sequence's frames were bad, the run stops with an error (after its outputs are written)."""
 
     kind: str = "auto"
     path: Optional[str] = None

@@ -6,7 +6,8 @@ The schedule: a mapping call for frame ``m`` is submitted right after ``m`` is t
 applies that call's results (its BA-refined pose of ``m``). Sequential mode is ``lag = 1``, run inline: every
 frame is tracked against the map of the frame before it (ESLAM's effective behaviour). Parallel mode uses
 ``lag = max(every_frame, 2)``: the call of frame ``m`` runs while frames ``m + 1 ... m + lag - 1`` are tracked
-against the previous map, and the tracker waits for it only at ``m + lag``. What the tracker sees is fixed by
+against the previous map, and the tracker waits for it only at ``m + lag`` (the first call, the warm-up, is
+always waited for). What the tracker sees is fixed by
 the frame numbers, never by timing, so a parallel run repeats exactly too.
 
 The tracker never sees a half-written map: in parallel mode it tracks on its own copy of the scene, which is
@@ -74,6 +75,7 @@ class MapWorker:
         self.track_scene = copy.deepcopy(scene) if parallel else scene
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map") if parallel else None
         self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
+        self._applied_any = False
         self.wait_s = 0.0  # time the tracker spent waiting for the mapper
         self.snapshot_s = 0.0  # time spent taking and loading snapshots
 
@@ -122,8 +124,13 @@ class MapWorker:
     def sync(self, j: int) -> list[MapDone]:
         """Before tracking frame ``j``: finish the calls of frames ``<= j - lag`` (waiting if needed), make the
         tracker's map the one the last of them left, and return them in order so the loop can apply their
-        results."""
-        return self._collect(j - self.lag)
+        results. The first call (the warm-up) is always waited for: nothing is tracked against an empty map."""
+        upto = j - self.lag
+        if not self._applied_any and self._queue:
+            upto = max(upto, self._queue[0][0])
+        out = self._collect(upto)
+        self._applied_any = self._applied_any or bool(out)
+        return out
 
     def drain(self) -> list[MapDone]:
         """Finish every queued call; the tracker's map then equals the mapper's. Returns the calls finished."""

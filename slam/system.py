@@ -248,10 +248,11 @@ class SLAM:
                 self._event(k, f"mapping: {d.result.skipped} step(s) skipped (non-finite loss or gradient)")
 
     def _check_bad_frames(self) -> None:
-        n = len(self.state.est)
-        if self.state.bad_frames > self.cfg.data.max_bad_fraction * n:
-            raise TooManyBadFrames(f"{self.state.bad_frames} of the first {n} frames could not be read "
-                                   f"(data.max_bad_fraction = {self.cfg.data.max_bad_fraction}); see the events")
+        n, total = len(self.state.est), len(self.indices)
+        if self.state.bad_frames > self.cfg.data.max_bad_fraction * total:
+            raise TooManyBadFrames(
+                f"{self.state.bad_frames} of the first {n} frames could not be read, more than "
+                f"data.max_bad_fraction = {self.cfg.data.max_bad_fraction} of the {total} frames; see the events")
 
     # ------------------------------------------------------------------------------------------------- a frame
     def step(self, k: int) -> FrameRecord:
@@ -358,15 +359,22 @@ class SLAM:
     def keyframe_poses(self) -> np.ndarray:
         return pose_to_matrix(self.keyframes.poses()).numpy() if len(self.keyframes) else np.zeros((0, 4, 4))
 
+    def hull_points(self) -> np.ndarray:
+        """``[P, 3]`` world points of the visibility hull: back-projected keyframe depth and camera centres
+        (stored in the checkpoint, so ``lrslam mesh`` needs no data)."""
+        from slam.mesher import hull_points
+
+        kf_c2w = [torch.from_numpy(T) for T in self.keyframe_poses()]
+        return hull_points([kf.depth for kf in self.keyframes.frames], kf_c2w, self.intr,
+                           self.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(self.cfg.seed))
+
     def mesh(self, resolution: float | None = None, cull: bool | None = None):
         """Extract (and cull) the mesh with the config's meshing settings."""
-        from slam.mesher import Hull, extract_mesh, hull_points
+        from slam.mesher import Hull, extract_mesh
 
         mcfg = self.cfg.meshing
         res = resolution or mcfg.resolution
-        kf_c2w = [torch.from_numpy(T) for T in self.keyframe_poses()]
-        pts = hull_points([kf.depth for kf in self.keyframes.frames], kf_c2w, self.intr, mcfg.hull_points_per_frame,
-                          torch.Generator().manual_seed(self.cfg.seed))
+        pts = self.hull_points()
         hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
         mesh = extract_mesh(self.scene, self.mc_bound, res, mcfg.batch, hull, self.device)
         if (mcfg.cull if cull is None else cull) and len(mesh.faces):
@@ -402,4 +410,5 @@ class SLAM:
             "intrinsics": self.intr.as_dict(),
             "keyframe_indices": [int(self.indices[kf.index]) for kf in self.keyframes.frames],
             "keyframe_poses": torch.from_numpy(self.keyframe_poses()).float(),
+            "hull_points": torch.from_numpy(self.hull_points()).float(),
         }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -87,13 +88,17 @@ def main(args) -> int:
         pass
     kf_idx = extra.get("keyframe_indices", [])
     kf_poses = extra.get("keyframe_poses", torch.zeros(0, 4, 4))
-    if ds is not None and kf_idx:
+    if "hull_points" in extra:  # the run's own hull: no data needed
+        pts = extra["hull_points"].double().numpy()
+    elif ds is not None and kf_idx:
         depths = [torch.as_tensor(ds[i].depth) for i in kf_idx]
         pts = hull_points(depths, list(kf_poses), intr, cfg.meshing.hull_points_per_frame,
                           torch.Generator().manual_seed(cfg.seed))
     else:
-        pts = poses[:, :3, 3].double().numpy()
-    hull = Hull(pts, cfg.meshing.hull_scale) if len(pts) >= 4 and ds is not None else None
+        pts = np.zeros((0, 3))
+        print(f"note: {path} holds no hull points and the run's data cannot be read: meshing without the "
+              "visibility hull (the mesh may grow surfaces where no camera looked)", file=sys.stderr)
+    hull = Hull(pts, cfg.meshing.hull_scale) if len(pts) >= 4 else None
     mesh = extract_mesh(scene, extra["marching_cubes_bound"], res, cfg.meshing.batch, hull)
     if not args.no_cull and len(mesh.faces):
         from slam.eval import cull_mesh
@@ -101,6 +106,9 @@ def main(args) -> int:
         depths = None
         if ds is not None and cfg.meshing.cull_depth_test:
             depths = [np.asarray(ds[i].depth, dtype=np.float32) for i in extra["frame_indices"]]
+        elif cfg.meshing.cull_depth_test:
+            print("note: the run's data cannot be read: culling by the view frusta only (no depth test)",
+                  file=sys.stderr)
         mesh = cull_mesh(mesh, poses.numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
     out = Path(args.out) if args.out else path.parent / f"mesh_{res:g}.ply"
     mesh.export(out)

@@ -61,3 +61,26 @@ def test_not_a_run_checkpoint_is_an_input_error(tmp_path):
         load_run_checkpoint(path)
     with pytest.raises(SlamInputError, match="checkpoint not found"):
         load_run_checkpoint(tmp_path / "missing.pt")
+
+
+@pytest.mark.slow
+def test_mesh_without_the_data_uses_the_hull_stored_in_the_checkpoint(tiny_seq, tmp_path):
+    """The run's own mesh, rebuilt by ``lrslam mesh`` after its data folder is gone, has the same geometry."""
+    import shutil
+
+    import trimesh
+
+    from slam.cli import main
+    from slam.runner import run_to_folder
+    from tests.slam.conftest import TINY
+
+    data = tmp_path / "data"
+    shutil.copytree(tiny_seq, data)
+    cfg = load_config("synthetic", [f"data.path={data}", *TINY, "meshing.cull=false", "meshing.resolution=0.05"])
+    run_to_folder(cfg, tmp_path / "run", progress=False, mesh=True)
+    shutil.rmtree(data)
+    assert main(["mesh", str(tmp_path / "run" / "checkpoint.pt"), "--no-cull", "--out", str(tmp_path / "m.ply")]) == 0
+    a = trimesh.load(tmp_path / "run" / "mesh.ply", process=False)
+    b = trimesh.load(tmp_path / "m.ply", process=False)
+    assert len(a.faces) > 0 and a.vertices.shape == b.vertices.shape
+    assert abs(a.vertices - b.vertices).max() < 1e-6
