@@ -70,10 +70,12 @@ def run_state(system) -> dict:
         "next": len(system.state.est),
         "state": st,
         "keyframes": [{"k": kf.index, "pose": kf.pose.clone()} for kf in system.keyframes.frames],
+        "keyframes_dropped": system.keyframes.dropped,
         "rng": {"torch": torch.get_rng_state(), "numpy": _numpy_state(), "gen": system.gen.get_state(),
                 "map_gen": system.map_gen.get_state()},
         "pending": pending,
         "applied_any": bool(mapper._applied_any),
+        "guard": system.guard.state(),
         "track_scene": ({k: v.detach().cpu() for k, v in mapper.track_scene.state_dict().items()}
                         if mapper.parallel else None),
         "fingerprint": fingerprint(system),
@@ -126,14 +128,19 @@ def restore(system, ckpt: dict) -> int:
     system.state = type(system.state)(**st)
     system.state.est = [p.clone() for p in est]
     system.keyframes.frames.clear()
+    system.keyframes.dropped = int(run.get("keyframes_dropped", 0))
+    cap = system.keyframes.max_keyframes
+    system.keyframes.max_keyframes = 0  # the checkpoint's keyframes are the ones kept: no dropping while restoring
     for kf in run["keyframes"]:
         frame = system.frames.get(kf["k"])
         if not frame.ok:
             raise SlamInputError(f"keyframe {kf['k']} can no longer be read: {frame.error}")
         system.keyframes.add(Keyframe(kf["k"], frame.color.cpu(), frame.depth.cpu(), kf["pose"].clone()))
+    system.keyframes.max_keyframes = cap
     if system.state.prev_depth_k >= 0:
         system._prev_depth = system.frames.get(system.state.prev_depth_k).depth
     system.mapper._applied_any = bool(run["applied_any"])
+    system.guard.load(run["guard"])
     for p in run["pending"]:
         job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])
         r = p["result"]

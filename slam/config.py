@@ -159,6 +159,18 @@ class TrackingConfig:
     # previous frame started at the constant-velocity guess (ours; slam/odometry.py)
     init: str = choice("const_speed", ("const_speed", "previous", "icp"))
     outlier_factor: float = num(10.0, **POSITIVE)
+    # ours: stop once `patience` iterations found no loss below the best by `min_improvement` (0: ESLAM's fixed count)
+    patience: int = num(0, **NONNEG)
+    min_iters: int = num(1, **COUNT)
+    min_improvement: float = num(0.0, lo=0, hi=1, hi_open=True)
+    # ours (slam/tracking_guard.py): a result is implausible when its loss is over lost_loss_factor x the recent
+    # median, fewer than lost_min_inliers of its rays are inliers, or it moved faster than max_speed (m/s) /
+    # max_angular_speed (deg/s); then `recovery` tracks again from several starts. 0 turns a check off.
+    lost_loss_factor: float = num(4.0, **NONNEG)
+    lost_min_inliers: float = num(0.5, **FRACTION)
+    max_speed: float = num(3.0, **NONNEG)
+    max_angular_speed: float = num(360.0, **NONNEG)
+    recovery: bool = True
     weights: LossWeights = field(default_factory=TRACKING_WEIGHTS)
 
 
@@ -180,6 +192,9 @@ class MappingConfig:
     joint_opt: bool = True
     joint_opt_cam_lr: float = num(0.001, **POSITIVE)
     ba_min_keyframes: int = num(4, **NONNEG)
+    # ours: keyframe images as loaded (float32) or 8-bit colour + float16 depth (compact, 3.2x less memory)
+    keyframe_storage: str = choice("float32", ("float32", "compact"))
+    max_keyframes: int = num(0, **NONNEG)  # ours: 0 keeps all; else the most redundant one goes (bounded memory)
     weights: LossWeights = field(default_factory=MAPPING_WEIGHTS)
 
 

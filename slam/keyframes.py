@@ -11,26 +11,82 @@ from slam.pose import pose_to_matrix
 
 @dataclass
 class Keyframe:
-    """One stored keyframe: ``color [H, W, 3]``, ``depth [H, W]`` (metres), its estimated pose as ``[7]`` (q, t)
-    camera-to-world (refined by BA)."""
+    """One stored keyframe: ``color [H, W, 3]`` and ``depth [H, W]`` (metres) as stored, its estimated pose as
+    ``[7]`` (q, t) camera-to-world (refined by BA). Read the images with :meth:`rgb` / :meth:`metres`, which
+    return float32 whatever the storage."""
 
     index: int
     color: torch.Tensor
     depth: torch.Tensor
     pose: torch.Tensor
 
+    def rgb(self) -> torch.Tensor:
+        """``[H, W, 3]`` float32 RGB in [0, 1]."""
+        return self.color.float() / 255.0 if self.color.dtype == torch.uint8 else self.color.float()
+
+    def metres(self) -> torch.Tensor:
+        """``[H, W]`` float32 depth in metres."""
+        return self.depth.float()
+
+    @property
+    def nbytes(self) -> int:
+        return self.color.numel() * self.color.element_size() + self.depth.numel() * self.depth.element_size()
+
+
+STORAGES = ("float32", "compact")
+
+
+def bytes_per_keyframe(height: int, width: int, storage: str = "float32") -> int:
+    """Image bytes one keyframe holds: float32 colour and depth (16 bytes a pixel), or ``compact``: 8-bit colour
+    and float16 depth (5 bytes a pixel)."""
+    return height * width * (16 if storage == "float32" else 5)
+
 
 @dataclass
 class KeyframeStore:
-    """Ordered list of keyframes (by frame index)."""
+    """Ordered list of keyframes (by frame index).
+
+    Args:
+        storage: ``float32`` keeps the images as loaded; ``compact`` stores colour as 8-bit (an error of at most
+            half a grey level) and depth as float16 (relative error <= 2^-11, 2 mm at 4 m): 3.2x less memory.
+        max_keyframes: 0 keeps every keyframe; otherwise, past this count, the most redundant one is dropped (the
+            keyframe, other than the first and the last two, whose pose is closest to its predecessor's:
+            translation in metres plus 0.5 m per radian of rotation), so memory stays bounded on long sequences.
+    """
 
     frames: list[Keyframe] = field(default_factory=list)
+    storage: str = "float32"
+    max_keyframes: int = 0
+    dropped: int = 0
 
     def __len__(self) -> int:
         return len(self.frames)
 
     def add(self, kf: Keyframe) -> None:
+        if self.storage == "compact":
+            kf = Keyframe(kf.index, (kf.rgb() * 255.0).round().clamp(0, 255).to(torch.uint8),
+                          kf.metres().to(torch.float16), kf.pose)
         self.frames.append(kf)
+        if self.max_keyframes and len(self.frames) > self.max_keyframes:
+            self.frames.pop(self._most_redundant())
+            self.dropped += 1
+
+    def _most_redundant(self) -> int:
+        T = keyframe_matrices(self.poses())
+        best, best_d = 1, float("inf")
+        for i in range(1, len(self.frames) - 2):
+            a, b = T[i - 1], T[i]
+            rel = a[:3, :3].T @ b[:3, :3]
+            angle = float(torch.arccos(((rel.trace() - 1) / 2).clamp(-1.0, 1.0)))
+            d = float((a[:3, 3] - b[:3, 3]).norm()) + 0.5 * angle
+            if d < best_d:
+                best, best_d = i, d
+        return best
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the stored images."""
+        return sum(kf.nbytes for kf in self.frames)
 
     def poses(self) -> torch.Tensor:
         """``[K, 7]`` current estimated poses."""

@@ -92,8 +92,8 @@ def map_frame(
             overlap = torch.ones(len(keyframes), dtype=torch.bool)
         window = select_window(len(keyframes), overlap, mc.window_size, generator)
 
-    colors = [keyframes.frames[i].color for i in window] + [color]
-    depths = [keyframes.frames[i].depth for i in window] + [depth]
+    colors = [keyframes.frames[i].rgb() for i in window] + [color]
+    depths = [keyframes.frames[i].metres() for i in window] + [depth]
     frame_ids = [keyframes.frames[i].index for i in window] + [index]
     poses0 = torch.stack([keyframes.frames[i].pose for i in window] + [pose.cpu()]).to(device)
     colors = torch.stack([c.to(device) for c in colors])  # [F, H, W, 3]

@@ -30,7 +30,9 @@ from slam.pose import constant_velocity, matrix_to_pose, pose_to_matrix
 from slam.observers import FrameRecord, Observer
 from slam.runtime import keep_freed_memory, set_threads
 from slam.scene import SceneModel, parameter_counts, scene_aabb
-from slam.tracker import track_frame
+from slam.rendering import sample_pixels
+from slam.tracker import evaluate_pose, track_frame
+from slam.tracking_guard import TrackingGuard
 
 log = logging.getLogger("slam")
 
@@ -165,11 +167,12 @@ class SLAM:
         self.mc_bound = cfg.scene.marching_cubes_bound or self.bound
         self.aabb = scene_aabb(self.bound, cfg.scene.bound_dividable)
         self.scene = SceneModel(cfg, self.aabb).to(self.device)
-        self.keyframes = KeyframeStore()
+        self.keyframes = KeyframeStore(storage=cfg.mapping.keyframe_storage, max_keyframes=cfg.mapping.max_keyframes)
         self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
                                   ahead=cfg.data.prefetch)
         self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel)
         self._prev_depth: torch.Tensor | None = None  # depth of the last frame with depth (ICP's reference)
+        self.guard = TrackingGuard(cfg.tracking)
 
     # ------------------------------------------------------------------------------------------------ set-up
     def _first_readable(self):
@@ -247,6 +250,58 @@ class SLAM:
             if d.result.skipped:
                 self._event(k, f"mapping: {d.result.skipped} step(s) skipped (non-finite loss or gradient)")
 
+    def _dt(self, k: int) -> float:
+        """Seconds between frame ``k`` and the frame before it (30 Hz per dataset frame without timestamps)."""
+        ts = getattr(self.ds, "timestamps", None)
+        if ts is None or k == 0:
+            return (self.indices[k] - self.indices[max(k - 1, 0)]) / 30.0
+        return float(ts[self.indices[k]]) - float(ts[self.indices[k - 1]])
+
+    def _guard(self, k: int, frame, res, prediction: torch.Tensor, starts: dict):
+        """Check a tracking result (:mod:`slam.tracking_guard`); on an implausible one, track again from each of
+        ``starts`` (name -> ``[7]`` pose) with twice the iterations and keep, among the plausible candidates, the
+        one with the lowest loss on one common set of pixels. With none plausible the frame is lost: its pose is
+        the ``prediction``. Returns ``(result, trusted)``."""
+        cfg = self.cfg
+        prev = self.state.est[-1]
+        dt = self._dt(k)
+        why = self.guard.reasons(res.loss, res.inliers, prev, res.pose, dt)
+        if not why:
+            self.guard.accept(res.loss)
+            return res, True
+        if not cfg.tracking.recovery:
+            res.pose = prediction.clone()
+            self._event(k, f"tracking lost ({'; '.join(why)}): predicted pose kept, frame not mapped", lost=True)
+            return res, False
+        H, W = frame.depth.shape
+        v, u = sample_pixels(H, W, 2 * cfg.tracking.pixels, *cfg.tracking.ignore_edge, generator=self.gen)
+        scene = self.mapper.track_scene
+        cands = [("first attempt", res)]
+        for name, start in starts.items():
+            r = track_frame(scene, frame.color, frame.depth, self.intr, start, cfg, self.gen,
+                            iters=2 * cfg.tracking.iters, patience=0)
+            if r.ok:
+                cands.append((name, r))
+        scored = []
+        for name, r in cands:
+            if self.guard.reasons(r.loss, r.inliers, prev, r.pose, dt):
+                continue  # only plausible candidates compete
+            loss, inl = evaluate_pose(scene, frame.color, frame.depth, self.intr, r.pose, cfg, v, u)
+            scored.append((loss, name, r))
+        if scored:
+            _, name, best = min(scored, key=lambda c: c[0])
+            best.iters = sum(r.iters for _, r in cands)
+            self.guard.accept(best.loss)
+            self._event(k, f"tracking implausible ({'; '.join(why)}); recovered by tracking again from the "
+                           f"{name}", recovered=True)
+            return best, True
+        # a pose no check accepts is worse than the motion model's guess: keep the prediction, do not map
+        res.pose = prediction.clone()
+        res.iters = sum(r.iters for _, r in cands)
+        self._event(k, f"tracking lost ({'; '.join(why)}); {len(cands) - 1} recovery attempts failed: predicted "
+                       "pose kept, frame not mapped", lost=True)
+        return res, False
+
     def _check_bad_frames(self) -> None:
         n, total = len(self.state.est), len(self.indices)
         if self.state.bad_frames > self.cfg.data.max_bad_fraction * total:
@@ -280,16 +335,21 @@ class SLAM:
             self._event(k, f"{reason}: not tracked, {what} used")
             trusted = frame.has_depth  # the first frame with depth starts the map at this pose
         else:
-            init, what = self._prediction(k)
+            pred, what = self._prediction(k)
+            init = pred
             if cfg.tracking.init == "icp" and self._prev_depth is not None:
-                init = self._icp_start(init, frame.depth)
+                init = self._icp_start(pred, frame.depth)
             res = track_frame(self.mapper.track_scene, frame.color, frame.depth, self.intr, init, cfg, self.gen)
             tracked = True
-            st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
-                                "inliers": res.inliers})
             if not res.ok:
                 self._event(k, f"tracking failed ({res.message}): {what} used")
                 trusted = False
+                res.pose = pred
+            else:
+                res, trusted = self._guard(k, frame, res, pred,
+                                           {"start": init, what: pred, "previous pose": st.est[-1]})
+            st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
+                                "inliers": res.inliers, "trusted": trusted})
             pose = res.pose
         st.est.append(pose.cpu())
         st.trusted.append(trusted)
@@ -365,7 +425,7 @@ class SLAM:
         from slam.mesher import hull_points
 
         kf_c2w = [torch.from_numpy(T) for T in self.keyframe_poses()]
-        return hull_points([kf.depth for kf in self.keyframes.frames], kf_c2w, self.intr,
+        return hull_points([kf.metres() for kf in self.keyframes.frames], kf_c2w, self.intr,
                            self.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(self.cfg.seed))
 
     def mesh(self, resolution: float | None = None, cull: bool | None = None):

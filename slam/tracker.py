@@ -2,7 +2,9 @@
 
 A fresh Adam (betas 0.5, 0.999) over the quaternion (``lr_r``) and translation (``lr_t``); every iteration draws
 new pixels; the loss at the pose *before* each step is recorded and the best one is returned (best-loss
-selection, no early stopping). The scene is held in :func:`tdfields.frozen` for the duration, so backward reaches
+selection). ESLAM runs a fixed number of iterations; with ``tracking.patience = N`` (ours) the call stops once
+``N`` iterations in a row found no loss lower than the best by ``min_improvement`` (relative), after at least
+``min_iters``. The scene is held in :func:`tdfields.frozen` for the duration, so backward reaches
 only the pose and the fields may cache what they derive from the map for this call (never across calls). A
 non-finite loss ends the optimisation; if no finite loss was seen the caller falls back.
 """
@@ -35,6 +37,34 @@ class TrackResult:
     inliers: float = float("nan")
 
 
+def _loss_at(scene, color, depth, intrinsics, c2w, cfg: Config, v, u, generator, perturb: bool):
+    """The tracking loss of the pixels ``(v, u)`` for camera-to-world ``c2w`` ``[4, 4]`` (differentiable in it).
+
+    Returns ``(loss, inlier share, message)``; ``loss`` is None (and ``message`` says why) when too few rays are
+    left or the rendering is not finite."""
+    tc = cfg.tracking
+    D = depth[v, u]
+    C = color[v, u]
+    dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                intrinsics.cy)
+    origins, dirs = camera_rays(c2w, dirs_cam)
+    keep = (D > 0) & (ray_box_exit(origins, dirs, scene.aabb) >= D)
+    if int(keep.sum()) < 10:
+        return None, 0.0, "too few rays with valid depth inside the scene box"
+    origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
+    out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, scene.beta, cfg.scene.truncation,
+                      cfg.rendering.n_stratified, cfg.rendering.n_importance, scene.aabb, perturb, generator,
+                      cfg.rendering.color_cutoff)
+    if not bool(torch.isfinite(out.depth).all()):
+        return None, 0.0, "non-finite rendered depth"
+    inl = tracking_inliers(out.depth, D, tc.outlier_factor)
+    if int(inl.sum()) < 10:
+        return None, 0.0, "too few inlier rays"
+    loss, _ = total_loss(out.sdf[inl], out.z[inl], out.depth[inl], out.color[inl], D[inl], C[inl],
+                         cfg.scene.truncation, tc.weights)
+    return loss, float(inl.float().mean()), ""
+
+
 def track_frame(
     scene,
     color: torch.Tensor,
@@ -43,6 +73,8 @@ def track_frame(
     init_pose: torch.Tensor,
     cfg: Config,
     generator: torch.Generator,
+    iters: int | None = None,
+    patience: int | None = None,
 ) -> TrackResult:
     """Estimate the camera-to-world pose of one frame.
 
@@ -53,15 +85,16 @@ def track_frame(
         init_pose: ``[7]`` (q, t) starting pose.
         cfg: resolved config (``tracking``, ``rendering``, ``scene.truncation``).
         generator: CPU generator for pixel and sample draws.
+        iters, patience: override ``tracking.iters`` / ``tracking.patience`` (recovery attempts).
 
     Returns:
         :class:`TrackResult` with the best-loss pose.
     """
     tc = cfg.tracking
+    iters = tc.iters if iters is None else iters
+    patience = tc.patience if patience is None else patience
     device = depth.device
     H, W = depth.shape
-    weights = tc.weights
-    T = cfg.scene.truncation
     q = torch.nn.Parameter(init_pose[:4].clone().to(device))
     t = torch.nn.Parameter(init_pose[4:].clone().to(device))
     opt = adam([{"params": [q], "lr": tc.lr_r}, {"params": [t], "lr": tc.lr_t}], betas=(0.5, 0.999))
@@ -69,42 +102,25 @@ def track_frame(
     best_pose = None
     best_inliers = float("nan")
     message = ""
-    it = 0
+    it = since_best = 0
     with tdfields.frozen(scene):  # no scene gradients; Six-axis caches its planes for this call only
-        for it in range(1, tc.iters + 1):
+        for it in range(1, iters + 1):
             v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
-            v, u = v.to(device), u.to(device)
-            D = depth[v, u]
-            C = color[v, u]
-            c2w = pose_to_matrix(torch.cat((q, t)))
-            dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy,
-                                        intrinsics.cx, intrinsics.cy)
-            origins, dirs = camera_rays(c2w, dirs_cam)
-            keep = (D > 0) & (ray_box_exit(origins, dirs, scene.aabb) >= D)
-            if int(keep.sum()) < 10:
-                message = "too few rays with valid depth inside the scene box"
+            loss, inliers, message = _loss_at(scene, color, depth, intrinsics, pose_to_matrix(torch.cat((q, t))),
+                                              cfg, v.to(device), u.to(device), generator, cfg.rendering.perturb)
+            if loss is None:
                 break
-            origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
-            out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, scene.beta, T, cfg.rendering.n_stratified,
-                              cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator,
-                              cfg.rendering.color_cutoff)
-            if not bool(torch.isfinite(out.depth).all()):
-                message = "non-finite rendered depth"
-                break
-            inl = tracking_inliers(out.depth, D, tc.outlier_factor)
-            if int(inl.sum()) < 10:
-                message = "too few inlier rays"
-                break
-            loss, _ = total_loss(out.sdf[inl], out.z[inl], out.depth[inl], out.color[inl], D[inl], C[inl], T,
-                                 weights)
             value = float(loss.detach())
             if not torch.isfinite(loss):
                 message = "non-finite tracking loss"
                 break
+            since_best = 0 if value < best_loss * (1.0 - tc.min_improvement) else since_best + 1
             if value < best_loss:
                 best_loss = value
                 best_pose = torch.cat((q, t)).detach().clone()
-                best_inliers = float(inl.float().mean())
+                best_inliers = inliers
+            if patience and it >= tc.min_iters and since_best >= patience:
+                break  # converged: no better pose for `patience` iterations (the best one is returned)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -116,3 +132,15 @@ def track_frame(
     q_n = best_pose[:4] / best_pose[:4].norm().clamp(min=1e-12)
     best_pose = torch.cat((standardize_quaternion(q_n), best_pose[4:]))
     return TrackResult(best_pose.cpu(), best_loss, True, message, it, best_inliers)
+
+
+@torch.no_grad()
+def evaluate_pose(scene, color, depth, intrinsics, pose: torch.Tensor, cfg: Config, v, u) -> tuple[float, float]:
+    """``(loss, inlier share)`` of the pose ``[7]`` on the given pixels without jitter (a fair comparison of
+    candidate poses: same pixels, same samples). ``(inf, 0)`` when too few rays remain."""
+    with tdfields.frozen(scene):
+        loss, inliers, _ = _loss_at(scene, color, depth, intrinsics, pose_to_matrix(pose.to(depth.device)), cfg,
+                                    v.to(depth.device), u.to(depth.device), None, False)
+    if loss is None or not bool(torch.isfinite(loss)):
+        return float("inf"), 0.0
+    return float(loss), inliers
