@@ -1,0 +1,167 @@
+"""The prepared GPU check: one run on one CUDA device, under 8 minutes, one JSON + markdown stamped with the device.
+
+Steps (each with its own time limit, so one slow step cannot eat the others' time):
+
+1. ``cuda-tests``: the Triton kernel's tests compiled for the GPU (``TRITON_INTERPRET=0``), and a short SLAM run
+   with ``--device cuda`` in both loop modes (sequential, parallel).
+2. ``field-speed``: the field-speed suite's CUDA cases (reference, Triton, ESLAM's grid_sample) with
+   pytest-benchmark, JSON kept.
+3. ``slam``: lrslam vs eslam on the TUM excerpt at the paper's TUM settings (``tum/fr1_rpy``), first
+   ``--frames`` frames, through ``benchmarks/slam_compare.py``.
+
+``--smoke`` runs the same steps end to end on the CPU at toy sizes (the bundled-style tiny synthetic sequence, a
+few iterations, the CPU field-speed cases run once): CI runs it so the script cannot rot between GPU loans.
+
+Usage (repository root)::
+
+    bash benchmarks/gpu_check.sh --data shared/data/tum_fr1_rpy --out $OUT          # on the GPU machine
+    bash benchmarks/gpu_check.sh --smoke --out /tmp/gpu_smoke                         # anywhere, CPU only
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(name: str, cmd: list[str], limit_s: int, env: dict, log: Path) -> dict:
+    t0 = time.perf_counter()
+    with open(log, "a") as fh:
+        fh.write(f"\n===== {name}: {' '.join(cmd)}\n")
+        fh.flush()
+        try:
+            p = subprocess.run(cmd, cwd=ROOT, env=env, stdout=fh, stderr=subprocess.STDOUT, timeout=limit_s)
+            code = p.returncode
+        except subprocess.TimeoutExpired:
+            code = "timeout"
+    wall = time.perf_counter() - t0
+    print(f"[gpu_check] {name}: {'ok' if code == 0 else code} in {wall:.0f} s", flush=True)
+    return {"step": name, "command": " ".join(cmd), "returncode": code, "wall_s": round(wall, 1)}
+
+
+def device_info(smoke: bool) -> dict:
+    import torch
+
+    info = {"date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "torch": torch.__version__,
+            "python": platform.python_version(), "smoke": smoke, "cuda": torch.cuda.is_available()}
+    if torch.cuda.is_available():
+        info["device"] = torch.cuda.get_device_name()
+        info["cuda_runtime"] = torch.version.cuda
+        try:
+            import triton
+
+            info["triton"] = triton.__version__
+        except ImportError:
+            info["triton"] = None
+    else:
+        info["device"] = "cpu"
+    try:
+        import tdfields
+
+        info["tdfields"] = tdfields.__version__
+    except ImportError:
+        pass
+    return info
+
+
+def tiny_sequence(out: Path) -> Path:
+    sys.path.insert(0, str(ROOT))
+    from slam.data.synthetic import SynthConfig, generate
+
+    seq = out / "tiny_synth"
+    if not (seq / "traj.txt").exists():
+        generate(seq, SynthConfig(frames=8, height=48, width=64, supersample=1))
+    return seq
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", required=True, help="folder for gpu_check.json, gpu_check.md and the logs")
+    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "tum_fr1_rpy"),
+                    help="the TUM fr1_rpy excerpt (copy it into the repository to take it to a GPU machine)")
+    ap.add_argument("--frames", type=int, default=40, help="frames of the excerpt for the SLAM step (default 40)")
+    ap.add_argument("--smoke", action="store_true", help="CPU, toy sizes: the whole script in about a minute")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    log = out / "gpu_check.log"
+    log.write_text("")
+    info = device_info(args.smoke)
+    if not args.smoke and not info["cuda"]:
+        print("gpu_check: error: no CUDA device here; use --smoke for the CPU dry run", file=sys.stderr)
+        return 2
+    if not args.smoke and not Path(args.data).is_dir():
+        print(f"gpu_check: error: data folder not found: {args.data}", file=sys.stderr)
+        return 2
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONUNBUFFERED="1")
+    py = sys.executable
+    dev = "cpu" if args.smoke else "cuda"
+    steps = []
+    # ---- 1. CUDA tests and a short SLAM run on the device, both loop modes
+    if args.smoke:
+        env_t = dict(env, TRITON_INTERPRET="1")
+        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", "-x", "tests/tdfields/kernels/test_gpu_triton.py",
+                                         "-k", "cp or triplane"], 300, env_t, log))
+    else:
+        env_t = dict(env, TRITON_INTERPRET="0")
+        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", "tests/tdfields/kernels/test_gpu_triton.py"],
+                          150, env_t, log))
+    seq = tiny_sequence(out)
+    tiny = ["data.max_frames=6", "tracking.iters=3", "tracking.pixels=100", "mapping.iters=3", "mapping.iters_first=5",
+            "mapping.pixels=200", "rendering.n_stratified=8", "rendering.n_importance=4"]
+    for mode in ("false", "true"):
+        steps.append(_run(f"slam-{dev}-parallel={mode}",
+                          [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", "--device", dev, "--data", str(seq),
+                           "--out", str(out / f"tiny_{mode}"), *tiny, f"parallel={mode}"], 120, env, log))
+    # ---- 2. field speed
+    bench = [py, "-m", "pytest", "benchmarks/test_field_speed.py", "-p", "no:cacheprovider", "-q"]
+    if args.smoke:
+        steps.append(_run("field-speed", bench + ["--benchmark-disable", "-k", "lrslam-cp and fused"], 300, env, log))
+    else:
+        steps.append(_run("field-speed", bench + ["--benchmark-enable", "-k", "cuda", "--benchmark-max-time=0.2",
+                                                  "--benchmark-min-rounds=5",
+                                                  f"--benchmark-json={out / 'field_speed_cuda.json'}"], 120, env, log))
+    # ---- 3. lrslam vs eslam at the paper's TUM settings (smoke: the tiny sequence, synthetic preset)
+    if args.smoke:
+        sc = ["--sequences", f"synthetic={seq}", "--seeds", "1", *tiny]
+    else:
+        sc = ["--sequences", f"tum/fr1_rpy={args.data}", "--seeds", "1", f"data.max_frames={args.frames}"]
+    steps.append(_run("slam", [py, "benchmarks/slam_compare.py", *sc[:2], "--representations", "lrslam", "eslam",
+                               "--no-mesh", "--quiet", "--out", str(out / "slam"), *sc[2:], f"device={dev}"],
+                      60 if args.smoke else 270, env, log))
+    result = {"info": info, "steps": steps}
+    sc_json = out / "slam" / "slam_compare.json"
+    if sc_json.is_file():
+        result["slam"] = json.loads(sc_json.read_text())["summary"]
+    fs_json = out / "field_speed_cuda.json"
+    if fs_json.is_file():
+        result["field_speed"] = [{"name": b["name"], "median_ms": 1000 * b["stats"]["median"]}
+                                 for b in json.loads(fs_json.read_text())["benchmarks"]]
+    (out / "gpu_check.json").write_text(json.dumps(result, indent=2))
+    lines = [f"GPU check {info['date']} on {info['device']} (torch {info['torch']}, triton {info.get('triton')}, "
+             f"tdfields {info.get('tdfields')}){' [smoke run on CPU]' if args.smoke else ''}", "",
+             "| step | result | wall s |", "|---|---|---|"]
+    lines += [f"| {s['step']} | {'ok' if s['returncode'] == 0 else s['returncode']} | {s['wall_s']} |" for s in steps]
+    if "slam" in result:
+        lines += ["", "| representation | ATE RMSE cm | FPT s |", "|---|---|---|"]
+        lines += [f"| {r['representation']} | {r['ate_rmse_cm']['mean']:.2f} | {r['fpt_s']['median']:.3f} |"
+                  for r in result["slam"]]
+    if "field_speed" in result:
+        lines += ["", "| case | median ms |", "|---|---|"]
+        lines += [f"| {b['name']} | {b['median_ms']:.3f} |" for b in result["field_speed"]]
+    (out / "gpu_check.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0 if all(s["returncode"] == 0 for s in steps) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
