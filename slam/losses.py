@@ -31,10 +31,8 @@ class LossWeights:
 
 
 def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    count = mask.sum()
-    if int(count) == 0:
-        return values.sum() * 0.0
-    return (values * mask).sum() / count
+    # an empty region gives 0 (a sum of nothing over a count clamped to 1), with no host round trip to check it
+    return (values * mask).sum() / mask.sum().clamp(min=1)
 
 
 def sdf_losses(sdf: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, truncation: float) -> dict[str, torch.Tensor]:
@@ -104,7 +102,7 @@ def total_loss(
             uses every ray passed in.
 
     Returns:
-        ``(loss, parts)`` with the scalar loss and the unweighted terms as floats.
+        ``(loss, parts)`` with the scalar loss and the unweighted terms as detached 0-d tensors.
     """
     if depth_mask is None:
         depth_mask = depth > 0
@@ -118,4 +116,5 @@ def total_loss(
         + weights.depth * parts["depth"]
         + weights.color * parts["color"]
     )
-    return loss, {k: float(v.detach()) for k, v in parts.items()}
+    # the parts stay tensors: converting them to floats would wait on the device every iteration, for a log line
+    return loss, {k: v.detach() for k, v in parts.items()}

@@ -13,8 +13,31 @@ from __future__ import annotations
 import torch
 
 
+def _quat_coefficients() -> torch.Tensor:
+    """``[9, 16]``: row ``3 i + j`` holds the coefficients of ``R[i, j] - delta_ij`` in the products ``q_a q_b``
+    (flattened ``a * 4 + b``, ``(w, x, y, z) = 0..3``), before the factor ``2 / |q|^2``."""
+    w, x, y, z = range(4)
+    rows = [
+        {(y, y): -1, (z, z): -1}, {(x, y): 1, (z, w): -1}, {(x, z): 1, (y, w): 1},
+        {(x, y): 1, (z, w): 1}, {(x, x): -1, (z, z): -1}, {(y, z): 1, (x, w): -1},
+        {(x, z): 1, (y, w): -1}, {(y, z): 1, (x, w): 1}, {(x, x): -1, (y, y): -1},
+    ]
+    C = torch.zeros(9, 16, dtype=torch.float64)
+    for r, terms in enumerate(rows):
+        for (a, b), c in terms.items():
+            C[r, 4 * a + b] = c
+    return C
+
+
+_QUAT_C = _quat_coefficients()
+
+
 def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
     """Rotation matrix of a (not necessarily unit) quaternion.
+
+    ``R = I + 2 / |q|^2 * (a fixed linear map of the products q_a q_b)``, as one outer product and one matrix
+    product: the tracker evaluates this every iteration, and a dozen scalar expressions cost a hundred autograd
+    nodes (forward and backward) where this costs eight.
 
     Args:
         q: ``[..., 4]`` as ``(w, x, y, z)``; any non-zero scale.
@@ -22,17 +45,11 @@ def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
     Returns:
         ``[..., 3, 3]`` rotation matrix (differentiable w.r.t. ``q``).
     """
-    w, x, y, z = torch.unbind(q, -1)
+    qq = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
     two_s = 2.0 / (q * q).sum(-1)
-    o = torch.stack(
-        (
-            1 - two_s * (y * y + z * z), two_s * (x * y - z * w), two_s * (x * z + y * w),
-            two_s * (x * y + z * w), 1 - two_s * (x * x + z * z), two_s * (y * z - x * w),
-            two_s * (x * z - y * w), two_s * (y * z + x * w), 1 - two_s * (x * x + y * y),
-        ),
-        -1,
-    )
-    return o.reshape(q.shape[:-1] + (3, 3))
+    m = qq @ _QUAT_C.to(q).T  # [..., 9]
+    eye = torch.eye(3, dtype=q.dtype, device=q.device).reshape(9)
+    return (eye + two_s[..., None] * m).reshape(q.shape[:-1] + (3, 3))
 
 
 def standardize_quaternion(q: torch.Tensor) -> torch.Tensor:

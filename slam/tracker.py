@@ -18,7 +18,7 @@ import torch
 import tdfields
 from slam.config import Config
 from slam.losses import total_loss, tracking_inliers
-from slam.optim import adam
+from slam.optim import VectorAdam
 from slam.pose import pose_to_matrix, standardize_quaternion
 from slam.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
 
@@ -95,9 +95,9 @@ def track_frame(
     patience = tc.patience if patience is None else patience
     device = depth.device
     H, W = depth.shape
-    q = torch.nn.Parameter(init_pose[:4].clone().to(device))
-    t = torch.nn.Parameter(init_pose[4:].clone().to(device))
-    opt = adam([{"params": [q], "lr": tc.lr_r}, {"params": [t], "lr": tc.lr_t}], betas=(0.5, 0.999))
+    pose = init_pose.clone().to(device).requires_grad_(True)  # [qw qx qy qz tx ty tz]
+    lrs = torch.tensor([tc.lr_r] * 4 + [tc.lr_t] * 3, dtype=pose.dtype, device=device)
+    opt = VectorAdam(pose, lrs, betas=(0.5, 0.999))
     best_loss = float("inf")
     best_pose = None
     best_inliers = float("nan")
@@ -106,7 +106,7 @@ def track_frame(
     with tdfields.frozen(scene):  # no scene gradients; Six-axis caches its planes for this call only
         for it in range(1, iters + 1):
             v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
-            loss, inliers, message = _loss_at(scene, color, depth, intrinsics, pose_to_matrix(torch.cat((q, t))),
+            loss, inliers, message = _loss_at(scene, color, depth, intrinsics, pose_to_matrix(pose),
                                               cfg, v.to(device), u.to(device), generator, cfg.rendering.perturb)
             if loss is None:
                 break
@@ -117,14 +117,14 @@ def track_frame(
             since_best = 0 if value < best_loss * (1.0 - tc.min_improvement) else since_best + 1
             if value < best_loss:
                 best_loss = value
-                best_pose = torch.cat((q, t)).detach().clone()
+                best_pose = pose.detach().clone()
                 best_inliers = inliers
             if patience and it >= tc.min_iters and since_best >= patience:
                 break  # converged: no better pose for `patience` iterations (the best one is returned)
-            opt.zero_grad(set_to_none=True)
+            opt.zero_grad()
             loss.backward()
             opt.step()
-            if not bool(torch.isfinite(q).all() and torch.isfinite(t).all()):
+            if not bool(torch.isfinite(pose).all()):
                 message = "non-finite pose update"
                 break
     if best_pose is None or not bool(torch.isfinite(best_pose).all()):

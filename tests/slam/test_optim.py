@@ -56,3 +56,27 @@ def test_older_torch_takes_foreach_on_cpu_and_the_same_steps(monkeypatch):
             opt.step()
     torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-7)
 
+
+
+def test_vector_adam_takes_the_steps_of_torch_adam_with_two_groups():
+    import torch
+
+    from slam.optim import VectorAdam
+
+    g = torch.Generator().manual_seed(0)
+    start = torch.randn(7, generator=g, dtype=torch.float64)
+    q = torch.nn.Parameter(start[:4].clone())
+    t = torch.nn.Parameter(start[4:].clone())
+    ref = torch.optim.Adam([{"params": [q], "lr": 0.002}, {"params": [t], "lr": 0.01}], betas=(0.5, 0.999),
+                           foreach=False)
+    p = start.clone().requires_grad_(True)
+    ours = VectorAdam(p, torch.tensor([0.002] * 4 + [0.01] * 3, dtype=torch.float64), betas=(0.5, 0.999))
+    target = torch.randn(7, generator=g, dtype=torch.float64)
+    for _ in range(30):
+        ref.zero_grad()
+        (torch.cat((q, t)) - target).pow(3).abs().sum().backward()
+        ref.step()
+        ours.zero_grad()
+        (p - target).pow(3).abs().sum().backward()
+        ours.step()
+    torch.testing.assert_close(p.detach(), torch.cat((q, t)).detach(), rtol=1e-12, atol=1e-14)
