@@ -18,6 +18,7 @@ _COMMAND_MODULES = (
     "slam.commands.run",
     "slam.commands.params",
     "slam.commands.mesh",
+    "slam.commands.sweep",
     "slam.data.cli",
     "slam.eval.cli",
 )
@@ -39,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  lrslam params --config replica/room0 representation=eslam\n"
             "  lrslam eval --trajectory runs/rpy/trajectory.txt --gt runs/rpy/trajectory_gt.txt\n"
             "  lrslam synth --out data/synth --frames 120\n"
+            "  lrslam sweep --config synthetic --representation lrslam eslam --seeds 5 --out sweeps/synth\n"
         ),
     )
     parser.add_argument("--version", action="version", version=f"lrslam {__version__}")
