@@ -41,6 +41,18 @@ def register(subparsers) -> None:
                    help="go on from the latest checkpoint of this run folder (same config and data)")
     p.add_argument("--no-mesh", action="store_true", help="skip mesh extraction and reconstruction metrics")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    v = p.add_argument_group("Rerun viewer (needs rerun-sdk: the viewer extra)")
+    v.add_argument("--rerun", metavar="FILE.rrd", default=None,
+                   help="log the run (frames, trajectories, camera, live ATE, mesh) to a Rerun recording")
+    v.add_argument("--rerun-connect", metavar="ADDR", nargs="?", default=None,
+                   const="rerun+http://127.0.0.1:9876/proxy",
+                   help="stream to a running Rerun viewer (default address: rerun+http://127.0.0.1:9876/proxy)")
+    v.add_argument("--rerun-images-every", metavar="N", type=int, default=1,
+                   help="log the colour and depth frames every N frames (default 1)")
+    v.add_argument("--rerun-jpeg", metavar="Q", type=int, default=None,
+                   help="JPEG-compress the logged colour frames at quality Q (default: raw)")
+    v.add_argument("--rerun-mesh-every", metavar="N", type=int, default=0,
+                   help="also log an unculled preview mesh every N keyframes (default 0: the final mesh only)")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides")
     p.set_defaults(func=main)
 
@@ -71,10 +83,11 @@ def main(args) -> int:
             overrides.append(f"device={args.device}")
         cfg = load_config(args.config or "synthetic", overrides)
         out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"
+    observers = _viewer(args)
     t0 = time.perf_counter()
     try:
         metrics = run_to_folder(cfg, out, progress=not args.quiet, mesh=not args.no_mesh,
-                                resume=args.resume is not None)
+                                resume=args.resume is not None, observers=observers)
     except RunInterrupted as exc:
         print(f"lrslam run: {exc}", file=sys.stderr)
         return exc.exit_code
@@ -86,4 +99,18 @@ def main(args) -> int:
     summary["wall_s"] = round(total, 1)
     print(json.dumps(summary, indent=None, default=str))
     print(f"outputs in {out}")
+    if args.rerun:
+        print(f"Rerun recording in {args.rerun} (view it with: rerun {args.rerun})")
     return 0
+
+
+def _viewer(args) -> list:
+    """The Rerun observer the flags ask for (checked before the run starts), or none."""
+    if args.rerun is None and args.rerun_connect is None:
+        return []
+    from slam.viewer import RerunObserver, check_recording_path, require_rerun
+
+    require_rerun()
+    save = check_recording_path(args.rerun) if args.rerun is not None else None
+    return [RerunObserver(save=save, connect=args.rerun_connect, images_every=args.rerun_images_every,
+                          jpeg_quality=args.rerun_jpeg, mesh_every=args.rerun_mesh_every)]
