@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import statistics
@@ -285,7 +286,7 @@ class RayEngine:
         import slam
         import tdfields
 
-        kw = {"include_dashboard": False, "log_to_driver": False, "logging_level": "ERROR"}
+        kw = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR}
         if self.address is None:
             root = str(Path(slam.__file__).resolve().parents[1])
             path = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)

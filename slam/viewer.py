@@ -20,6 +20,7 @@ What is logged, on the ``frame`` timeline (the dataset's frame index):
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ import torch
 from slam.errors import SlamInputError
 from slam.observers import FrameRecord, Observer
 
-INSTALL_HINT = 'python3 -m pip install "rerun-sdk>=0.18" (or the viewer extra: pip install -e ".[viewer]")'
+INSTALL_HINT = 'python3 -m pip install "rerun-sdk>=0.24" (or the viewer extra: pip install -e ".[viewer]")'
 #: where ``rerun`` (the viewer) listens by default
 DEFAULT_CONNECT = "rerun+http://127.0.0.1:9876/proxy"
 
@@ -137,9 +138,38 @@ class RerunObserver(Observer):
         self._est: list[list[float]] = []
         self._gt: list[list[float]] = []
         self._keyframes_seen = 0
+        #: wall seconds spent in this observer's logging calls (on_start, on_frame, on_finish, close)
+        self.log_s = 0.0
 
     # ------------------------------------------------------------------------------------------- observer
     def on_start(self, system) -> None:
+        t0 = time.perf_counter()
+        self._start(system)
+        self.log_s += time.perf_counter() - t0
+
+    def on_frame(self, system, record: FrameRecord) -> None:
+        t0 = time.perf_counter()
+        self._frame(system, record)
+        self.log_s += time.perf_counter() - t0
+
+    def on_finish(self, system, metrics: dict, mesh=None) -> None:
+        t0 = time.perf_counter()
+        if mesh is not None and len(mesh.faces):
+            self.rec.set_time("frame", sequence=int(system.indices[len(system.state.est) - 1]))
+            self._log_mesh(mesh)
+        self.log_s += time.perf_counter() - t0
+
+    def close(self) -> None:
+        if self.rec is None:
+            return
+        t0 = time.perf_counter()
+        rec, self.rec = self.rec, None
+        rec.flush()
+        rec.disconnect()
+        self.log_s += time.perf_counter() - t0
+
+    # ------------------------------------------------------------------------------------------- helpers
+    def _start(self, system) -> None:
         rr, intr = self.rr, system.intr
         # the sinks open here, not in __init__, so a run that fails while loading its data leaves no file
         rec = self.rec = rr.RecordingStream(self.application_id)
@@ -158,7 +188,7 @@ class RerunObserver(Observer):
         rec.log("metrics/ate_cm", rr.SeriesLines(names="live ATE RMSE (cm)", colors=[_EST_COLOR]), static=True)
         rec.log("metrics/frame_time_s", rr.SeriesLines(names="frame time (s)"), static=True)
 
-    def on_frame(self, system, record: FrameRecord) -> None:
+    def _frame(self, system, record: FrameRecord) -> None:
         rr, rec = self.rr, self.rec
         rec.set_time("frame", sequence=record.frame)
         pose = record.pose.detach().double().cpu().numpy()
@@ -183,19 +213,6 @@ class RerunObserver(Observer):
                     # unculled: culling needs every frame's pose, and the run is not over
                     self._log_mesh(system.mesh(cull=False))
 
-    def on_finish(self, system, metrics: dict, mesh=None) -> None:
-        if mesh is not None and len(mesh.faces):
-            self.rec.set_time("frame", sequence=int(system.indices[len(system.state.est) - 1]))
-            self._log_mesh(mesh)
-
-    def close(self) -> None:
-        if self.rec is None:
-            return
-        rec, self.rec = self.rec, None
-        rec.flush()
-        rec.disconnect()
-
-    # ------------------------------------------------------------------------------------------- helpers
     def _log_images(self, record: FrameRecord) -> None:
         rr, rec = self.rr, self.rec
         if record.color is not None:

@@ -99,8 +99,10 @@ def main(args) -> int:
     summary["wall_s"] = round(total, 1)
     print(json.dumps(summary, indent=None, default=str))
     print(f"outputs in {out}")
-    if args.rerun:
-        print(f"Rerun recording in {args.rerun} (view it with: rerun {args.rerun})")
+    for obs in observers:
+        share = 100 * obs.log_s / metrics["loop_s"] if metrics.get("loop_s") else float("nan")
+        where = f"recording in {args.rerun} (view it with: rerun {args.rerun})" if args.rerun else "streamed"
+        print(f"Rerun {where}; logging took {obs.log_s:.2f} s in this process ({share:.1f} % of the loop)")
     return 0
 
 

@@ -1,6 +1,7 @@
 """lrslam sweep: planning and bad input, finished-run detection, summaries (no Ray), and a tiny sweep on a local Ray."""
 
 import json
+import logging
 import shutil
 import statistics
 import time
@@ -11,8 +12,6 @@ import pytest
 from slam.errors import SlamInputError
 from slam.sweep import (RunSpec, SerialEngine, execute, failed_record, finished_metrics, plan, summarize,
                         summary_markdown)
-
-from tests.slam.conftest import TINY
 
 # 4 frames, a few iterations: every stage of a run, in a few seconds
 SWEEP_TINY = ["data.max_frames=4", "tracking.iters=2", "tracking.pixels=100", "mapping.iters=2",
@@ -196,7 +195,7 @@ def test_tiny_sweep_on_local_ray(tiny_seq, tmp_path, capsys):
     out = tmp_path / "sw"
     argv = ["sweep", "--config", f"synthetic={tiny_seq}", f"synthetic={broken}", "--representation", "lrslam",
             "eslam", "--seeds", "2", "--out", str(out), "--no-mesh", *SWEEP_TINY]
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="ERROR",
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
              runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}})
     try:
         t0 = time.perf_counter()

@@ -48,8 +48,11 @@ def test_recording_of_a_short_run(tiny_seq, tmp_path):
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *CHEAP_MESH])
     rrd = tmp_path / "rec" / "run.rrd"
     rrd.parent.mkdir()
+    previews = tmp_path / "rec" / "previews.rrd"
+    obs = RerunObserver(save=rrd, images_every=2)
     metrics = run_to_folder(cfg, tmp_path / "run", progress=False, mesh=True,
-                            observers=[RerunObserver(save=rrd, images_every=2)])
+                            observers=[obs, RerunObserver(save=previews, mesh_every=1)])
+    assert 0 < obs.log_s < metrics["loop_s"]
     data = read_recording(rrd)
     n = metrics["num_frames"]
     frames = list(range(n))
@@ -103,6 +106,15 @@ def test_recording_of_a_short_run(tiny_seq, tmp_path):
     assert len(logged["Mesh3D:vertex_colors"][0][1]) == len(mesh.vertices)
     assert logged["Mesh3D:vertex_positions"][0][0] == frames[-1]
 
+    # a second observer with a preview mesh after every keyframe (frames 0 and 4 here), then the final one
+    meshes = read_recording(previews)["/world/mesh"]["Mesh3D:vertex_positions"]
+    from slam.system import frame_indices
+
+    keyframes = [k for k in frame_indices(24, cfg)
+                 if k % cfg.mapping.every_frame == 0 and k % cfg.mapping.keyframe_every == 0]
+    assert [f for f, _ in meshes] == keyframes + [frames[-1]]
+    assert all(len(v) > 0 for _, v in meshes)
+
 
 def test_cli_rerun_into_unwritable_path_exits_2_before_the_run(tmp_path, capsys, monkeypatch):
     pytest.importorskip("rerun")
@@ -128,7 +140,7 @@ def test_cli_without_rerun_names_the_install_command(tmp_path, capsys, monkeypat
     monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun -> ImportError
     assert main(["run", "--rerun", str(tmp_path / "x.rrd"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and 'pip install "rerun-sdk>=0.18"' in err
+    assert len(err.splitlines()) == 1 and 'pip install "rerun-sdk>=0.24"' in err
     assert not (tmp_path / "x.rrd").exists()
 
 
