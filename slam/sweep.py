@@ -48,7 +48,8 @@ class RunSpec:
         representation, seed: the run's; ``overrides``: the user's ``key=value`` overrides.
         run_dir: absolute output folder; ``mesh``: extract the mesh; ``threads``: torch threads of the run.
         backend: tdfields kernel backend for the run (``auto`` / ``torch`` / ``numba``), None = leave as is.
-        tag: free text added to the folder name (e.g. a repeat number), empty by default.
+        tag: free text naming the run beyond preset, representation and seed (e.g. a repeat), empty by default.
+        progress: show the run's progress bar (only sensible for runs in this process).
     """
 
     preset: str
@@ -62,6 +63,7 @@ class RunSpec:
     threads: int = 1
     backend: str | None = None
     tag: str = ""
+    progress: bool = False
 
     def config_overrides(self) -> list[str]:
         over = [f"representation={self.representation}", f"seed={self.seed}", f"threads={self.threads}",
@@ -223,7 +225,7 @@ def run_one(spec: RunSpec) -> dict:
 
                 stack.enter_context(kernels.use_backend(spec.backend))
             cfg = load_config(spec.preset, spec.config_overrides())
-            metrics = run_to_folder(cfg, spec.run_dir, progress=False, mesh=spec.mesh)
+            metrics = run_to_folder(cfg, spec.run_dir, progress=spec.progress, mesh=spec.mesh)
     except Exception as exc:
         tb = traceback.format_exc()
         try:
@@ -330,19 +332,22 @@ class RayEngine:
 
 # --------------------------------------------------------------------------------------------------- running
 def execute(specs: Sequence[RunSpec], engine, out: str | Path | None = None,
-            log: Callable[[str], None] | None = None) -> dict:
-    """Run the specs not finished yet on ``engine`` and return the summary (also written to ``out``).
+            log: Callable[[str], None] | None = None, reuse: bool = True) -> dict:
+    """Run the specs on ``engine`` and return the summary (also written to ``out`` when given).
 
-    A finished run folder is reused. ``summary.json`` / ``summary.md`` are rewritten after every run, so an
+    With ``reuse`` a finished run folder (same config) is not run again; without it every spec runs (a
+    benchmark after a code change). ``summary.json`` / ``summary.md`` are rewritten after every run, so an
     interrupted sweep keeps what it did. Records are in plan order.
     """
     from slam.config import load_config
 
     log = log or (lambda s: print(s, file=sys.stderr))
+    if len({s.run_dir for s in specs}) != len(specs):
+        raise ValueError("two runs of the sweep share a run folder")
     records: dict[str, dict] = {}
     todo = []
     for spec in specs:
-        m = finished_metrics(spec.run_dir)
+        m = finished_metrics(spec.run_dir) if reuse else None
         if m is None:
             todo.append(spec)
             continue

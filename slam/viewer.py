@@ -105,6 +105,22 @@ def default_blueprint():
     )
 
 
+class _Track:
+    """Camera centres so far, ``[n, 3]`` float32 in a buffer that doubles when full: appending and handing the
+    whole strip to Rerun stay cheap on sequences of thousands of frames (no Python lists to convert)."""
+
+    def __init__(self):
+        self.buf = np.zeros((64, 3), dtype=np.float32)
+        self.n = 0
+
+    def append(self, xyz) -> np.ndarray:
+        if self.n == len(self.buf):
+            self.buf = np.concatenate([self.buf, np.zeros_like(self.buf)])
+        self.buf[self.n] = xyz
+        self.n += 1
+        return self.buf[: self.n]
+
+
 class RerunObserver(Observer):
     """Log a run to a ``.rrd`` file and/or a running Rerun viewer.
 
@@ -135,8 +151,8 @@ class RerunObserver(Observer):
         self.save = None if save is None else Path(save).expanduser()
         self.connect, self.application_id = connect, application_id
         self.rec = None
-        self._est: list[list[float]] = []
-        self._gt: list[list[float]] = []
+        self._est = _Track()
+        self._gt = _Track()
         self._keyframes_seen = 0
         #: wall seconds spent in this observer's logging calls (on_start, on_frame, on_finish, close)
         self.log_s = 0.0
@@ -193,12 +209,12 @@ class RerunObserver(Observer):
         rec.set_time("frame", sequence=record.frame)
         pose = record.pose.detach().double().cpu().numpy()
         rec.log("world/camera", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
-        self._est.append(pose[:3, 3].tolist())
         # the strip is re-sent whole each frame, so a viewer scrubbing the timeline sees it grow
-        rec.log("world/trajectory/estimated", rr.LineStrips3D([self._est], colors=[_EST_COLOR], radii=[0.004]))
+        rec.log("world/trajectory/estimated",
+                rr.LineStrips3D([self._est.append(pose[:3, 3])], colors=[_EST_COLOR], radii=[0.004]))
         if record.gt is not None and bool(torch.isfinite(record.gt).all()):
-            self._gt.append(record.gt[:3, 3].double().tolist())
-            rec.log("world/trajectory/ground_truth", rr.LineStrips3D([self._gt], colors=[_GT_COLOR], radii=[0.004]))
+            gt = self._gt.append(record.gt[:3, 3].double().cpu().numpy())
+            rec.log("world/trajectory/ground_truth", rr.LineStrips3D([gt], colors=[_GT_COLOR], radii=[0.004]))
         if record.k % self.images_every == 0:
             self._log_images(record)
         if math.isfinite(record.ate_m):
