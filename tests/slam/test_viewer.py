@@ -11,8 +11,8 @@ from slam.config import load_config
 from tests.slam.conftest import TINY
 
 # a coarse, unevaluated mesh: the recording's mesh entity without the seconds of reconstruction metrics
-CHEAP_MESH = ["meshing.resolution=0.08", "meshing.eval_icp=false", "meshing.eval_samples=2000",
-              "meshing.depth_l1_views=2"]
+CHEAP_MESH = ["meshing.resolution=0.08", "evaluation.icp=false", "evaluation.samples=2000",
+              "evaluation.depth_l1_views=2"]
 
 
 def read_recording(path) -> dict:
