@@ -16,9 +16,12 @@ Usage::
 ``--seeds N`` runs seeds 0..N-1 (the ``seed`` config key: pixel draws, jitter, window choice, initialisation).
 Accuracy is reported as mean ± sample standard deviation over the seeds, with every seed's value in the JSON.
 
-``--jobs J`` runs J configurations at once in separate processes (one torch thread each): accuracy is exactly the
-same as run one by one (a run is deterministic for its seed), but frame times then share the CPU, so timing
-tables use ``--jobs 1`` (the default).
+Runs go through :mod:`slam.sweep` (the engine of ``lrslam sweep``): ``--jobs 1`` (the default) runs them one after
+another in this process (:class:`slam.sweep.SerialEngine`, with progress bars), ``--jobs J`` runs J at once as
+Ray tasks on a local Ray with J CPUs, one torch thread each, and ``--address`` sends them to a Ray cluster
+(:class:`slam.sweep.RayEngine`). Accuracy is exactly the same as run one by one (a run is deterministic for its
+seed), but frame times then share the CPU, so timing tables use ``--jobs 1``. Every run is run afresh (no
+reuse of earlier run folders: a benchmark measures the code as it is).
 
 ``--backends`` repeats every run with each tdfields kernel backend (``auto``: the fused kernels; ``torch``: the
 pure-PyTorch reference), for a before/after table of the fused kernels on the same sequence and settings.
@@ -31,10 +34,8 @@ the first repeat only (the runs are deterministic for a seed; only their timing 
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import csv
 import json
-import multiprocessing
 import statistics
 import sys
 import time
@@ -70,25 +71,9 @@ def row_of(seq: str, data: str, rep: str, m: dict, backend: str, seed: int, repe
     }
 
 
-def _run_one(job: dict) -> dict:
-    """One run in this (worker) process: returns its row (or the error)."""
-    from slam.config import load_config
-    from slam.runner import run_to_folder
-    from tdfields import kernels
-
-    kernels.set_backend(job["backend"])
-    cfg = load_config(job["preset"], job["overrides"])
-    t0 = time.perf_counter()
-    try:
-        m = run_to_folder(cfg, job["run_dir"], progress=job["progress"], mesh=job["mesh"])
-    except Exception as exc:  # a failed run is a result too: record it, keep the others
-        return {"job": job, "error": f"{type(exc).__name__}: {exc}"}
-    finally:
-        kernels.set_backend("auto")
-    row = row_of(job["preset"], job["data"], job["rep"], m, job["backend"], job["seed"], job["repeat"])
-    print(f"{job['label']}: ATE {row['ate_rmse_cm']} cm, FPT {row['fpt_s']:.3f} s, "
-          f"{time.perf_counter() - t0:.0f} s wall", file=sys.stderr, flush=True)
-    return {"job": job, "row": row}
+def row_of_record(rec: dict, spec, data: str, repeat: int) -> dict:
+    """A finished sweep record (``slam.sweep.run_one``) as a row of this benchmark (``data`` as given)."""
+    return row_of(spec.preset, data, spec.representation, rec, spec.backend, spec.seed, repeat)
 
 
 def summarize(rows: list[dict]) -> list[dict]:
@@ -155,7 +140,10 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=1,
                     help="runs per configuration and seed, interleaved; FPT is their median (default 1)")
     ap.add_argument("--jobs", type=int, default=1,
-                    help="runs at once, in separate processes (default 1; >1 only for accuracy, not timing)")
+                    help="runs at once, as Ray tasks (default 1: one after another in this process; "
+                         ">1 only for accuracy, not timing)")
+    ap.add_argument("--address", default=None, metavar="RAY_ADDRESS",
+                    help="run on this Ray cluster instead (ray.init(address=...))")
     ap.add_argument("--quiet", action="store_true", help="no per-run progress bars")
     ap.add_argument("overrides", nargs="*", metavar="key=value", help="applied to every run")
     args = ap.parse_args(argv)
@@ -176,8 +164,10 @@ def main(argv=None) -> int:
     bad = [r for r in args.representations if r not in REPRESENTATIONS]
     if bad:
         return _fail(f"unknown representation '{bad[0]}'; choose from {', '.join(REPRESENTATIONS)}")
+    from slam.sweep import RayEngine, RunSpec, SerialEngine, execute, require_ray
+
     out = Path(args.out)
-    jobs = []
+    specs, given = [], {}  # run folder -> (data as given, repeat)
     for seq in args.sequences:
         preset, _, data = seq.partition("=")
         if data and not Path(data).exists():
@@ -186,34 +176,39 @@ def main(argv=None) -> int:
             for seed in range(args.seeds):
                 for backend in args.backends:
                     for rep in args.representations:
-                        over = [f"representation={rep}", f"seed={seed}", *args.overrides]
-                        over += [f"data.path={data}"] if data else []
-                        try:
-                            load_config(preset, over)  # every preset, key and value checked before any run
-                        except SlamInputError as exc:
-                            return _fail(str(exc))
+                        spec_data = str(Path(data).resolve()) if data else None
                         name = preset.replace("/", "_") + (f"-{Path(data).name}" if data else "")
                         suffix = ("" if backend == "auto" else f"-{backend}") + f"-s{seed}" + (
                             f"-r{repeat}" if repeat else "")
-                        jobs.append({"preset": preset, "data": data, "rep": rep, "backend": backend, "seed": seed,
-                                     "repeat": repeat, "overrides": over, "mesh": not args.no_mesh and repeat == 0,
-                                     "run_dir": str(out / "runs" / f"{name}-{rep}{suffix}"),
-                                     "progress": not args.quiet and args.jobs == 1,
-                                     "label": f"{name} {rep} [{backend}] seed {seed} repeat {repeat}"})
+                        spec = RunSpec(preset=preset, data=spec_data, label=name, representation=rep, seed=seed,
+                                       overrides=tuple(args.overrides), run_dir=str(out / "runs" / f"{name}-{rep}{suffix}"),
+                                       mesh=not args.no_mesh and repeat == 0, threads=1, backend=backend,
+                                       tag=f"repeat {repeat}", progress=not args.quiet and args.jobs == 1 and not args.address)
+                        try:
+                            load_config(preset, spec.config_overrides())  # every preset, key and value checked first
+                        except SlamInputError as exc:
+                            return _fail(str(exc))
+                        specs.append(spec)
+                        given[spec.run_dir] = (data, repeat)
     out.mkdir(parents=True, exist_ok=True)
-    results = []
-    if args.jobs == 1:
-        results = [_run_one(j) for j in jobs]
-    else:
-        ctx = multiprocessing.get_context("spawn")  # fresh interpreters: no forked torch/numba thread state
-        with concurrent.futures.ProcessPoolExecutor(args.jobs, mp_context=ctx) as pool:
-            results = list(pool.map(_run_one, jobs))
-    rows = [r["row"] for r in results if "row" in r]
-    failed = [{"label": r["job"]["label"], "error": r["error"]} for r in results if "error" in r]
+    try:
+        if args.jobs == 1 and args.address is None:
+            engine = SerialEngine()
+        else:
+            require_ray()
+            engine = RayEngine(address=args.address, cpus_per_run=1, num_cpus=args.jobs)
+        summary_runs = execute(specs, engine, reuse=False)["runs"]
+    except SlamInputError as exc:
+        return _fail(str(exc))
+    by_dir = {s.run_dir: s for s in specs}
+    rows = [row_of_record(r, by_dir[r["run_dir"]], *given[r["run_dir"]]) for r in summary_runs if r["status"] == "ok"]
+    failed = [{"label": f"{r['label']} {r['representation']} [{r['backend']}] seed {r['seed']} {r['tag']}",
+               "error": r["error"], "traceback": r.get("traceback")} for r in summary_runs if r["status"] != "ok"]
     for f in failed:
         print(f"FAILED {f['label']}: {f['error']}", file=sys.stderr)
     stamp = {"date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "version": tdfields.__version__,
-             "cpu": cpu_name(), "threads": torch.get_num_threads(), "torch": torch.__version__, "jobs": args.jobs}
+             "cpu": cpu_name(), "threads": 1, "torch": torch.__version__, "jobs": args.jobs,
+             "engine": getattr(engine, "name", "serial")}
     command = "python benchmarks/slam_compare.py " + " ".join(argv if argv is not None else sys.argv[1:])
     summary = summarize(rows)
     (out / "slam_compare.json").write_text(json.dumps(

@@ -343,7 +343,8 @@ def execute(specs: Sequence[RunSpec], engine, out: str | Path | None = None,
 
     log = log or (lambda s: print(s, file=sys.stderr))
     if len({s.run_dir for s in specs}) != len(specs):
-        raise ValueError("two runs of the sweep share a run folder")
+        dup = next(s.run_dir for i, s in enumerate(specs) if any(s.run_dir == t.run_dir for t in specs[:i]))
+        raise SlamInputError(f"two runs of the sweep would write to the same folder {dup}")
     records: dict[str, dict] = {}
     todo = []
     for spec in specs:
