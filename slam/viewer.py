@@ -35,6 +35,7 @@ DEFAULT_CONNECT = "rerun+http://127.0.0.1:9876/proxy"
 
 _EST_COLOR = (255, 140, 0)
 _GT_COLOR = (40, 180, 60)
+_LINE_RADIUS = -2.0  # negative: 2 UI points wide at any zoom, visible around a room and around a desk alike
 
 
 def require_rerun():
@@ -87,12 +88,14 @@ def _up_axis(c2w0: torch.Tensor):
 
 
 def default_blueprint():
-    """3D view of the world next to the colour and depth frames and the two time series."""
+    """3D view of the world (mesh, trajectories, camera with its colour frame) next to the colour and depth frames
+    and the two time series."""
     import rerun.blueprint as rrb
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="scene"),
+            # the depth frame stays out of the 3D view: drawn there as a point cloud it hides the mesh
+            rrb.Spatial3DView(origin="world", contents=["+ $origin/**", "- /world/camera/image/depth"], name="scene"),
             rrb.Vertical(
                 rrb.Spatial2DView(origin="world/camera/image", contents="$origin/rgb", name="colour"),
                 rrb.Spatial2DView(origin="world/camera/image", contents="$origin/depth", name="depth"),
@@ -211,10 +214,10 @@ class RerunObserver(Observer):
         rec.log("world/camera", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
         # the strip is re-sent whole each frame, so a viewer scrubbing the timeline sees it grow
         rec.log("world/trajectory/estimated",
-                rr.LineStrips3D([self._est.append(pose[:3, 3])], colors=[_EST_COLOR], radii=[0.004]))
+                rr.LineStrips3D([self._est.append(pose[:3, 3])], colors=[_EST_COLOR], radii=[_LINE_RADIUS]))
         if record.gt is not None and bool(torch.isfinite(record.gt).all()):
             gt = self._gt.append(record.gt[:3, 3].double().cpu().numpy())
-            rec.log("world/trajectory/ground_truth", rr.LineStrips3D([gt], colors=[_GT_COLOR], radii=[0.004]))
+            rec.log("world/trajectory/ground_truth", rr.LineStrips3D([gt], colors=[_GT_COLOR], radii=[_LINE_RADIUS]))
         if record.k % self.images_every == 0:
             self._log_images(record)
         if math.isfinite(record.ate_m):
