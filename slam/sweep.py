@@ -142,6 +142,9 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
         preset, d = split_preset(item)
         if not preset:
             raise SlamInputError(f"--config '{item}': empty preset name")
+        if preset.endswith((".yaml", ".yml")) and Path(preset).expanduser().is_file():
+            # workers may not share this process's working directory
+            preset = str(Path(preset).expanduser().resolve())
         d = d if d is not None else data
         if d is not None:
             p = Path(d).expanduser()

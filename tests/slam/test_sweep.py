@@ -41,6 +41,13 @@ def test_plan_slashes_and_same_preset_twice(tiny_seq, tmp_path):
     assert Path(tum[0].run_dir).name == "tum_fr1_rpy-cpu-lrslam-s0"
 
 
+def test_plan_yaml_preset_is_made_absolute(tiny_seq, tmp_path, monkeypatch):
+    (tmp_path / "mine.yaml").write_text("inherit: synthetic\ntracking: {iters: 3}\n")
+    monkeypatch.chdir(tmp_path)
+    (spec,) = plan([f"mine.yaml={tiny_seq}"], ["lrslam"], 1, "sw")
+    assert spec.preset == str(tmp_path / "mine.yaml") and Path(spec.run_dir) == tmp_path / "sw" / "mine-lrslam-s0"
+
+
 @pytest.mark.parametrize("configs, reps, seeds, over, match", [
     (["nope"], ["lrslam"], 1, [], "unknown preset 'nope'"),
     (["synthetic"], ["tri"], 1, [], "unknown representation 'tri'"),
