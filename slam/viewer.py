@@ -92,6 +92,13 @@ def default_blueprint():
     and the two time series."""
     import rerun.blueprint as rrb
 
+    parts = []
+    try:
+        # follow the newest frame: live, the view keeps up with the run; from a file, it opens at the end
+        # (the final mesh) instead of replaying from frame 0
+        parts.append(rrb.TimePanel(timeline="frame", play_state="following", state="collapsed"))
+    except TypeError:  # rerun-sdk < 0.25 has no playback settings in the blueprint
+        pass
     return rrb.Blueprint(
         rrb.Horizontal(
             # the depth frame stays out of the 3D view: drawn there as a point cloud it hides the mesh
@@ -104,6 +111,7 @@ def default_blueprint():
             ),
             column_shares=[3, 2],
         ),
+        *parts,
         collapse_panels=True,
     )
 
