@@ -2,6 +2,7 @@
 
 import sys
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -114,6 +115,46 @@ def test_recording_of_a_short_run(tiny_seq, tmp_path):
                  if k % cfg.mapping.every_frame == 0 and k % cfg.mapping.keyframe_every == 0]
     assert [f for f, _ in meshes] == keyframes + [frames[-1]]
     assert all(len(v) > 0 for _, v in meshes)
+
+
+@pytest.mark.slow
+def test_rerun_connect_streams_to_a_listening_viewer(tiny_seq, tmp_path):
+    """--rerun-connect against a real listener: Rerun's own `rerun --port P --save FILE` (no window)."""
+    pytest.importorskip("rerun")
+    import socket
+    import subprocess
+    import time
+    import warnings
+
+    from slam.cli import main
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    saved = tmp_path / "received.rrd"
+    # the viewer binary itself: `python -m rerun` would leave it running as an orphan on terminate()
+    rerun_cli = pytest.importorskip("rerun_cli")
+    binary = Path(rerun_cli.__file__).parent / "rerun"
+    server = subprocess.Popen([str(binary), "--port", str(port), "--save", str(saved)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):  # until it listens
+            with socket.socket() as probe:
+                if probe.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.1)
+        assert main(["run", "--data", str(tiny_seq), "--out", str(tmp_path / "run"), "--no-mesh", "--quiet",
+                     "--rerun-connect", f"rerun+http://127.0.0.1:{port}/proxy", *TINY]) == 0
+        time.sleep(1.0)  # the listener writes what it received
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a stream saved by a listener has no footer
+        data = read_recording(saved)
+    strips = data["/world/trajectory/estimated"]["LineStrips3D:strips"]
+    assert [f for f, _ in strips] == list(range(6)) and len(strips[-1][1][0]) == 6
+    assert "/world/camera/image/rgb" in data and "/metrics/frame_time_s" in data
 
 
 def test_cli_rerun_into_unwritable_path_exits_2_before_the_run(tmp_path, capsys, monkeypatch):
