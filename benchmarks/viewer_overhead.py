@@ -108,7 +108,7 @@ def main(argv=None) -> int:
                   f"logging {res['log_s']} s", file=sys.stderr)
     pairs = []
     for r in range(args.pairs):
-        plain, logged = pair_run(args.config, args.data, out / "pairs" / str(r), args.rerun_args, args.overrides)
+        plain, logged = pair_run(args.config, args.data, out / "runs" / f"pair-{r}", args.rerun_args, args.overrides)
         pairs.append({"pair": r, "plain": plain, "rerun": logged,
                       "fpt_ratio": logged["fpt_s"] / plain["fpt_s"],
                       "loop_ratio": logged["loop_per_frame_s"] / plain["loop_per_frame_s"]})
