@@ -41,16 +41,16 @@ def missing_dependencies() -> list[str]:
     return [dist for mod, dist in SLAM_REQUIREMENTS.items() if not _importable(mod)]
 
 
-def install_command() -> str:
-    """The command that installs the ``slam`` extra for this installation of the package.
+def install_command(extra: str = "slam") -> str:
+    """The command that installs an extra (``slam``, ``viewer``, ``sweep``...) for this installation of the package.
 
     From a source checkout (editable install, or run from the repository) that is
     ``python3 -m pip install -e "<checkout>[slam]"``; from a wheel, ``python3 -m pip install "tdfields[slam]"``.
     """
     root = Path(__file__).resolve().parents[1]
     if (root / "pyproject.toml").is_file() and (root / "tdfields").is_dir():
-        return f'python3 -m pip install -e "{root}[slam]"'
-    return 'python3 -m pip install "tdfields[slam]"'
+        return f'python3 -m pip install -e "{root}[{extra}]"'
+    return f'python3 -m pip install "tdfields[{extra}]"'
 
 
 def missing_message(missing: list[str]) -> str:

@@ -12,12 +12,14 @@ Three steps, kept apart so each can be used (and tested) alone:
 A run's record is its ``metrics.json`` plus ``preset``, ``data``, ``representation``, ``seed``, ``overrides``,
 ``run_dir`` and ``status`` (``ok`` / ``failed``); a failed run carries ``error`` (one line) and ``traceback``
 (its last frames) instead of metrics. A run folder whose ``metrics.json`` exists and is not marked
-``"partial": true`` is finished, and a repeated sweep reuses it (``"reused": true``) instead of running it again.
+``"partial": true`` is finished, and a repeated sweep reuses it (``"reused": true``) instead of running it again;
+an interrupted run (partial, no error, a checkpoint) goes on from its checkpoint (``resumed_from`` in its record).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -32,7 +34,6 @@ from typing import Callable, Iterable, Sequence
 
 from slam.errors import SlamInputError
 
-RAY_HINT = 'python3 -m pip install "ray>=2.9" (or the sweep extra: pip install -e ".[sweep]")'
 # keys the sweep sets itself (from its flags), so an override must not
 _SWEEP_KEYS = ("representation", "seed", "threads", "data.path")
 _TRACEBACK_LINES = 12
@@ -50,6 +51,7 @@ class RunSpec:
         backend: tdfields kernel backend for the run (``auto`` / ``torch`` / ``numba``), None = leave as is.
         tag: free text naming the run beyond preset, representation and seed (e.g. a repeat), empty by default.
         progress: show the run's progress bar (only sensible for runs in this process).
+        resume: go on from the folder's checkpoint (set by :func:`execute` for an interrupted run).
     """
 
     preset: str
@@ -64,6 +66,7 @@ class RunSpec:
     backend: str | None = None
     tag: str = ""
     progress: bool = False
+    resume: bool = False
 
     def config_overrides(self) -> list[str]:
         over = [f"representation={self.representation}", f"seed={self.seed}", f"threads={self.threads}",
@@ -204,6 +207,16 @@ def finished_metrics(run_dir: str | Path) -> dict | None:
     return m
 
 
+def interrupted(run_dir: str | Path) -> bool:
+    """True for a run stopped by SIGINT / SIGTERM: partial metrics without an error, and its checkpoint."""
+    try:
+        m = json.loads((Path(run_dir) / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return (isinstance(m, dict) and bool(m.get("partial")) and not m.get("error")
+            and (Path(run_dir) / "checkpoint.pt").is_file())
+
+
 def failed_record(spec: RunSpec, exc: BaseException, tb: str | None = None) -> dict:
     """The record of a run that raised ``exc``: one-line error and the traceback's last lines."""
     msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
@@ -228,7 +241,7 @@ def run_one(spec: RunSpec) -> dict:
 
                 stack.enter_context(kernels.use_backend(spec.backend))
             cfg = load_config(spec.preset, spec.config_overrides())
-            metrics = run_to_folder(cfg, spec.run_dir, progress=spec.progress, mesh=spec.mesh)
+            metrics = run_to_folder(cfg, spec.run_dir, progress=spec.progress, mesh=spec.mesh, resume=spec.resume)
     except Exception as exc:
         tb = traceback.format_exc()
         try:
@@ -258,7 +271,10 @@ def require_ray():
     try:
         import ray
     except ImportError:
-        raise SlamInputError(f"lrslam sweep runs on Ray, which is not installed: {RAY_HINT}") from None
+        from slam._deps import install_command
+
+        raise SlamInputError(f"lrslam sweep runs on Ray, which is not installed; install the sweep extra: "
+                             f"{install_command('sweep')} (or: python3 -m pip install \"ray>=2.9\")") from None
     return ray
 
 
@@ -353,6 +369,9 @@ def execute(specs: Sequence[RunSpec], engine, out: str | Path | None = None,
     for spec in specs:
         m = finished_metrics(spec.run_dir) if reuse else None
         if m is None:
+            if reuse and interrupted(spec.run_dir):
+                _check_same_config(spec, load_config(spec.preset, spec.config_overrides()).to_dict())
+                spec = dataclasses.replace(spec, resume=True)
             todo.append(spec)
             continue
         _check_same_config(spec, load_config(spec.preset, spec.config_overrides()).to_dict())
@@ -364,6 +383,8 @@ def execute(specs: Sequence[RunSpec], engine, out: str | Path | None = None,
 
     if records:
         log(f"{len(records)} of {len(specs)} runs already finished: reused")
+    if any(s.resume for s in todo):
+        log(f"{sum(s.resume for s in todo)} interrupted runs go on from their checkpoints")
     done = [0]
 
     def on_result(rec: dict) -> None:

@@ -29,7 +29,6 @@ import torch
 from slam.errors import SlamInputError
 from slam.observers import FrameRecord, Observer
 
-INSTALL_HINT = 'python3 -m pip install "rerun-sdk>=0.24" (or the viewer extra: pip install -e ".[viewer]")'
 #: where ``rerun`` (the viewer) listens by default
 DEFAULT_CONNECT = "rerun+http://127.0.0.1:9876/proxy"
 
@@ -43,7 +42,10 @@ def require_rerun():
     try:
         import rerun
     except ImportError:
-        raise SlamInputError(f"the Rerun viewer needs rerun-sdk, which is not installed: {INSTALL_HINT}") from None
+        from slam._deps import install_command
+
+        raise SlamInputError(f"the Rerun viewer needs rerun-sdk, which is not installed; install the viewer extra: "
+                             f"{install_command('viewer')} (or: python3 -m pip install \"rerun-sdk>=0.24\")") from None
     return rerun
 
 
@@ -212,6 +214,16 @@ class RerunObserver(Observer):
                                                  width=intr.width, height=intr.height,
                                                  camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.2),
                 static=True)
+        done = len(system.state.est)
+        if done:  # a resumed run: its trajectory so far, so the strips carry on from it
+            from slam.pose import pose_to_matrix
+
+            for T in pose_to_matrix(torch.stack(system.state.est)):
+                self._est.append(T[:3, 3].double().numpy())
+            if system.gt is not None:
+                for g in system.gt[:done]:
+                    if bool(torch.isfinite(g).all()):
+                        self._gt.append(g[:3, 3].double().numpy())
         rec.log("metrics/ate_cm", rr.SeriesLines(names="live ATE RMSE (cm)", colors=[_EST_COLOR]), static=True)
         rec.log("metrics/frame_time_s", rr.SeriesLines(names="frame time (s)"), static=True)
 

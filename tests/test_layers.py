@@ -49,6 +49,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
      ("slam.tracker", "slam.tracking_guard", "slam.mapper", "slam.map_worker")),
     ("slam: the loop", ("slam.observers", "slam.system")),
     ("slam: a run's outputs, checkpoints, a run to a folder", ("slam.outputs", "slam.checkpoint", "slam.runner")),
+    ("slam: around whole runs (a viewer observer, sweeps of runs)", ("slam.viewer", "slam.sweep")),
     ("slam: commands", ("slam.commands", "slam.commands.*", "slam.data.cli", "slam.eval.cli", "slam.cli", "slam.__main__")),
 ]
 

@@ -93,7 +93,7 @@ def test_cli_without_ray_names_the_install_command(tmp_path, capsys, monkeypatch
     assert main(["sweep", "--config", "synthetic", "--representation", "lrslam", "--seeds", "1",
                  "--out", str(tmp_path / "sw")]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and 'pip install "ray>=2.9"' in err
+    assert len(err.splitlines()) == 1 and 'pip install "ray>=2.9"' in err and '[sweep]' in err
 
 
 # --------------------------------------------------------------------------------------------------- records
@@ -176,6 +176,34 @@ def test_serial_sweep_records_a_failing_run_and_reuses_finished_ones(tiny_seq, t
     assert s2["runs"][0].get("reused") is True and not s2["runs"][1].get("reused")
     assert (Path(ok["run_dir"]) / "metrics.json").stat().st_mtime_ns == mtime
     assert s2["runs"][0]["ate_rmse_m"] == ok["ate_rmse_m"]
+
+
+def test_interrupted_run_goes_on_from_its_checkpoint(tiny_seq, tmp_path):
+    """A run stopped by SIGINT after two frames (partial outputs and a checkpoint) is resumed, not restarted."""
+    import os
+    import signal
+
+    from slam.config import load_config
+    from slam.observers import Observer
+    from slam.runner import RunInterrupted, run_to_folder
+    from slam.sweep import interrupted
+
+    (spec,) = plan([f"synthetic={tiny_seq}"], ["lrslam"], 1, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
+
+    class Interrupt(Observer):
+        def on_frame(self, system, record):
+            if record.k == 1:
+                os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.raises(RunInterrupted):
+        run_to_folder(load_config(spec.preset, spec.config_overrides()), spec.run_dir, progress=False, mesh=False,
+                      observers=[Interrupt()])
+    assert interrupted(spec.run_dir) and finished_metrics(spec.run_dir) is None
+    logs = []
+    (rec,) = execute([spec], SerialEngine(), log=logs.append)["runs"]
+    assert "1 interrupted runs go on from their checkpoints" in logs
+    assert rec["status"] == "ok" and rec["resumed_from"] == 2 and rec["num_frames"] == 4
+    assert not json.loads((Path(spec.run_dir) / "metrics.json").read_text()).get("partial")
 
 
 def test_finished_run_with_another_config_is_not_reused(tiny_seq, tmp_path):

@@ -157,6 +157,31 @@ def test_rerun_connect_streams_to_a_listening_viewer(tiny_seq, tmp_path):
     assert "/world/camera/image/rgb" in data and "/metrics/frame_time_s" in data
 
 
+def test_resumed_run_continues_the_trajectories(tiny_seq, tmp_path):
+    pytest.importorskip("rerun")
+    import os
+    import signal
+
+    from slam.observers import Observer
+    from slam.runner import RunInterrupted, run_to_folder
+    from slam.viewer import RerunObserver
+
+    class Interrupt(Observer):
+        def on_frame(self, system, record):
+            if record.k == 2:
+                os.kill(os.getpid(), signal.SIGINT)
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY])
+    with pytest.raises(RunInterrupted):
+        run_to_folder(cfg, tmp_path / "run", progress=False, mesh=False, observers=[Interrupt()])
+    rrd = tmp_path / "resumed.rrd"
+    run_to_folder(cfg, tmp_path / "run", progress=False, mesh=False, resume=True, observers=[RerunObserver(save=rrd)])
+    strips = read_recording(rrd)["/world/trajectory/estimated"]["LineStrips3D:strips"]
+    assert [f for f, _ in strips] == [3, 4, 5] and [len(v[0]) for _, v in strips] == [4, 5, 6]
+    est = np.loadtxt(tmp_path / "run" / "trajectory.txt")[:, 1:4]
+    np.testing.assert_allclose(strips[-1][1][0], est, atol=1e-5)
+
+
 def test_cli_rerun_into_unwritable_path_exits_2_before_the_run(tmp_path, capsys, monkeypatch):
     pytest.importorskip("rerun")
     import slam.runner
@@ -181,7 +206,7 @@ def test_cli_without_rerun_names_the_install_command(tmp_path, capsys, monkeypat
     monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun -> ImportError
     assert main(["run", "--rerun", str(tmp_path / "x.rrd"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and 'pip install "rerun-sdk>=0.24"' in err
+    assert len(err.splitlines()) == 1 and 'pip install "rerun-sdk>=0.24"' in err and '[viewer]' in err
     assert not (tmp_path / "x.rrd").exists()
 
 
