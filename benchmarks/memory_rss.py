@@ -48,7 +48,8 @@ def run_setting(name: str, data: Path, frames: int, every: int) -> dict:
     from slam.keyframes import bytes_per_keyframe
     from slam.observers import Observer
     from slam.outputs import trajectory_metrics
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={data}", f"data.max_frames={frames}", *SETTINGS[name]])
     series = []

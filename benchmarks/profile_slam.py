@@ -79,7 +79,8 @@ def profile_one(preset: str, representation: str, warm_frames: int, repeats: int
 
     from slam.config import load_config
     from slam.mapper import map_frame
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
     from slam.tracker import track_frame
 
     cfg = load_config(preset, [f"representation={representation}", f"data.max_frames={warm_frames + 1}",

@@ -156,3 +156,36 @@ def _extract(scene, bound, resolution, batch, hull, device) -> trimesh.Trimesh:
     rgb = (np.concatenate(colors, 0) * 255).round().astype(np.uint8)
     rgba = np.concatenate((rgb, np.full((len(rgb), 1), 255, np.uint8)), 1)
     return trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=rgba, process=False)
+
+
+def run_hull_points(system) -> np.ndarray:
+    """``[P, 3]`` world points of a run's visibility hull: back-projected keyframe depth and the keyframes' camera
+    centres (stored in the checkpoint, so ``lrslam mesh`` needs no data). ``system``: a :class:`slam.system.SLAM`."""
+    kf_c2w = [torch.from_numpy(T) for T in system.keyframe_poses()]
+    return hull_points([kf.metres() for kf in system.keyframes.frames], kf_c2w, system.intr,
+                       system.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(system.cfg.seed))
+
+
+def run_mesh(system, resolution: float | None = None, cull: bool | None = None) -> trimesh.Trimesh:
+    """A run's mesh with its config's meshing settings: marching cubes inside the visibility hull, then (unless
+    ``cull`` is False) culled with every processed frame's estimated pose, and depth where the config asks for the
+    depth test; unreadable frames do not count as views."""
+    from slam.eval import cull_mesh
+
+    mcfg = system.cfg.meshing
+    pts = run_hull_points(system)
+    hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
+    mesh = extract_mesh(system.scene, system.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, system.device)
+    if not (mcfg.cull if cull is None else cull) or not len(mesh.faces):
+        return mesh
+    poses = system.poses_matrix().copy()
+    depths = None
+    if mcfg.cull_depth_test:
+        depths = []
+        for k in range(len(poses)):
+            d = system._depth_or_none(k)
+            if d is None:
+                poses[k] = np.nan
+                d = np.zeros((system.intr.height, system.intr.width), np.float32)
+            depths.append(np.asarray(d, dtype=np.float32))
+    return cull_mesh(mesh, poses, system.intr, depths=depths, truncation=system.cfg.scene.truncation)

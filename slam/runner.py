@@ -28,7 +28,8 @@ from slam.config import Config, config_from_dict, save_config
 from slam.errors import SlamInputError
 from slam.observers import Observer
 from slam.outputs import trajectory_metrics, write_mesh, write_metrics, write_trajectories
-from slam.system import SLAM, load_data, resolve_device
+from slam.setup import load_data, resolve_device
+from slam.system import SLAM
 
 log = logging.getLogger("slam")
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -29,82 +28,13 @@ from slam.map_worker import MapJob, MapWorker
 from slam.pose import constant_velocity, matrix_to_pose, pose_to_matrix
 from slam.observers import FrameRecord, Observer
 from slam.runtime import keep_freed_memory, set_threads
-from slam.scene import SceneModel, parameter_counts, scene_aabb
+from slam.setup import auto_bound, frame_indices
+from slam.scene import SceneModel, scene_aabb
 from slam.rendering import sample_pixels
 from slam.tracker import evaluate_pose, track_frame
 from slam.tracking_guard import TrackingGuard
 
 log = logging.getLogger("slam")
-
-
-# --------------------------------------------------------------------------------------------------- set-up
-def resolve_device(name: str) -> torch.device:
-    """``cpu`` / ``cuda`` / ``cuda:N``; a GPU request without CUDA raises :class:`SlamInputError`."""
-    if name.startswith("cuda"):
-        if not torch.cuda.is_available():
-            raise SlamInputError(f"device '{name}' requested but CUDA is not available on this machine; use --device cpu")
-        idx = int(name.split(":")[1]) if ":" in name else 0
-        if idx >= torch.cuda.device_count():
-            raise SlamInputError(f"device '{name}' requested but only {torch.cuda.device_count()} GPU(s) exist")
-    elif name != "cpu":
-        raise SlamInputError(f"device must be cpu or cuda, got '{name}'")
-    return torch.device(name)
-
-
-def load_data(cfg: Config):
-    """Open the dataset the config names (the bundled synthetic sequence when ``data.path`` is null)."""
-    from slam.data import load_dataset
-    from slam.data.loader import detect_layout
-
-    path = cfg.data.path
-    kind = cfg.data.kind
-    if path is None:
-        if kind not in ("auto", "synthetic", "replica"):
-            raise SlamInputError(f"preset '{cfg.name}' reads {kind} data: pass its folder with --data PATH")
-        from slam.data.synthetic import default_sequence
-
-        path = str(default_sequence())
-    if kind == "synthetic":
-        kind = "replica"
-    p = Path(path).expanduser()
-    if not p.exists():
-        raise SlamInputError(f"data folder not found: {p}")
-    found = detect_layout(p)
-    if kind != "auto" and found != kind:
-        raise SlamInputError(f"preset '{cfg.name}' expects {kind} data but {p} looks like {found} data "
-                             f"(pick a {found} preset or data.kind=auto)")
-    try:
-        ds = load_dataset(p, kind=found, **cfg.data.options)
-    except SlamInputError:
-        raise
-    except (ValueError, FileNotFoundError, KeyError, OSError, TypeError) as exc:
-        raise SlamInputError(f"{p}: cannot be read as {found} data: {exc}") from None
-    if len(ds) == 0:
-        raise SlamInputError(f"{p}: the dataset has no frames")
-    return ds
-
-
-def frame_indices(n: int, cfg: Config) -> list[int]:
-    idx = list(range(0, n, max(cfg.data.stride, 1)))
-    if cfg.data.max_frames:
-        idx = idx[: cfg.data.max_frames]
-    return idx
-
-
-def auto_bound(depths: list[torch.Tensor], c2w0: torch.Tensor, percentile: float, margin: float) -> list[list[float]]:
-    """Scene box from the first frames' depth (``scene.bound: auto``).
-
-    A cube centred on the first camera whose half-size is the ``percentile``-th percentile of the valid depth
-    of the given frames plus ``margin`` metres. It holds everything those frames see from any orientation at
-    the start, so a camera that mostly rotates (or moves less than ``margin``) stays inside without hand-tuned
-    boxes. Lengths in metres.
-    """
-    vals = torch.cat([d[d > 0].flatten().float().cpu() for d in depths])
-    if vals.numel() == 0:
-        raise SlamInputError("bound=auto: the first frames have no valid depth; give scene.bound explicitly")
-    r = float(np.percentile(vals.numpy(), percentile)) + margin
-    c = c2w0[:3, 3].double().tolist()
-    return [[c[a] - r, c[a] + r] for a in range(3)]
 
 
 # --------------------------------------------------------------------------------------------------- loop
@@ -419,46 +349,16 @@ class SLAM:
     def keyframe_poses(self) -> np.ndarray:
         return pose_to_matrix(self.keyframes.poses()).numpy() if len(self.keyframes) else np.zeros((0, 4, 4))
 
-    def hull_points(self) -> np.ndarray:
-        """``[P, 3]`` world points of the visibility hull: back-projected keyframe depth and camera centres
-        (stored in the checkpoint, so ``lrslam mesh`` needs no data)."""
-        from slam.mesher import hull_points
-
-        kf_c2w = [torch.from_numpy(T) for T in self.keyframe_poses()]
-        return hull_points([kf.metres() for kf in self.keyframes.frames], kf_c2w, self.intr,
-                           self.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(self.cfg.seed))
-
     def mesh(self, resolution: float | None = None, cull: bool | None = None):
-        """Extract (and cull) the mesh with the config's meshing settings."""
-        from slam.mesher import Hull, extract_mesh
+        """The run's mesh (:func:`slam.mesher.run_mesh`): marching cubes in the visibility hull, culled."""
+        from slam.mesher import run_mesh
 
-        mcfg = self.cfg.meshing
-        res = resolution or mcfg.resolution
-        pts = self.hull_points()
-        hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
-        mesh = extract_mesh(self.scene, self.mc_bound, res, mcfg.batch, hull, self.device)
-        if (mcfg.cull if cull is None else cull) and len(mesh.faces):
-            mesh = self._cull(mesh)
-        return mesh
-
-    def _cull(self, mesh):
-        """Cull with ``slam.eval.cull_mesh`` using every processed frame's estimated pose (and depth if configured);
-        unreadable frames do not count as views."""
-        from slam.eval import cull_mesh
-
-        poses = self.poses_matrix().copy()
-        depths = None
-        if self.cfg.meshing.cull_depth_test:
-            depths = []
-            for k in range(len(poses)):
-                d = self._depth_or_none(k)
-                if d is None:
-                    poses[k] = np.nan
-                    d = np.zeros((self.intr.height, self.intr.width), np.float32)
-                depths.append(np.asarray(d, dtype=np.float32))
-        return cull_mesh(mesh, poses, self.intr, depths=depths, truncation=self.cfg.scene.truncation)
+        return run_mesh(self, resolution, cull)
 
     def checkpoint_extra(self) -> dict:
+        """What a scene checkpoint records of the run: poses, frames, bounds, intrinsics, keyframes, hull points."""
+        from slam.mesher import run_hull_points
+
         ts = getattr(self.ds, "timestamps", None)
         return {
             "poses": torch.from_numpy(self.poses_matrix()).float(),
@@ -470,5 +370,5 @@ class SLAM:
             "intrinsics": self.intr.as_dict(),
             "keyframe_indices": [int(self.indices[kf.index]) for kf in self.keyframes.frames],
             "keyframe_poses": torch.from_numpy(self.keyframe_poses()).float(),
-            "hull_points": torch.from_numpy(self.hull_points()).float(),
+            "hull_points": torch.from_numpy(run_hull_points(self)).float(),
         }

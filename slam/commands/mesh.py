@@ -81,7 +81,7 @@ def main(args) -> int:
     intr = Intrinsics(**extra["intrinsics"])
     ds = None
     try:
-        from slam.system import load_data
+        from slam.setup import load_data
 
         ds = load_data(cfg)
     except SlamInputError:

@@ -118,7 +118,7 @@ def backward_source(program: Program, widths: tuple[int, ...], want_factors: tup
             for i in active:
                 f = term[i]
                 nd = len(program.factor_axes[f])
-                body.append(f"    gs = go" + "".join(f" * v{o}" for o in term if o != f))
+                body.append("    gs = go" + "".join(f" * v{o}" for o in term if o != f))
                 if want_factors[f]:
                     for kk in range(1 << nd):
                         body.append(f"    tl.atomic_add(G{f} + r{f}_{kk}[:, None] * {widths[f]} + j[None, :], "

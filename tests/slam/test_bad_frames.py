@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from slam.config import load_config
-from slam.errors import SlamInputError
 
 FAST = ["data.max_frames=8", "tracking.iters=2", "tracking.pixels=100", "mapping.iters=2", "mapping.iters_first=3",
         "mapping.pixels=200", "rendering.n_stratified=6", "rendering.n_importance=2", "mapping.every_frame=2"]
@@ -97,7 +96,8 @@ class _Edit:
 
 
 def _system(tiny_seq, **edit):
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST])
     return SLAM(cfg, _Edit(load_data(cfg), **edit))

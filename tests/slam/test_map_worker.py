@@ -21,7 +21,8 @@ def _digest(module) -> str:
 
 
 def _run(tiny_seq, monkeypatch, parallel: bool, every: int):
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10",
                                     f"mapping.every_frame={every}", f"parallel={str(parallel).lower()}"])

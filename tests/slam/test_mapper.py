@@ -13,7 +13,8 @@ from tests.slam.conftest import TINY
 
 @pytest.fixture(scope="module")
 def setup(tiny_seq):
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.iters=3"])
     s = SLAM(cfg, load_data(cfg))

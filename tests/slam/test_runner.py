@@ -114,7 +114,8 @@ def test_resume_refuses_other_settings_and_non_run_folders(tmp_path, capsys):
 def test_checkpoint_roundtrip_restores_every_piece_of_state(tiny_seq):
     from slam.checkpoint import restore, run_state
     from slam.config import load_config
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *RUN])
     a = SLAM(cfg, load_data(cfg))

@@ -4,7 +4,7 @@ import torch
 from slam.config import REPRESENTATIONS, load_config
 from slam.rendering import render_rays
 from slam.scene import SceneModel, parameter_counts, scene_aabb
-from slam.system import auto_bound
+from slam.setup import auto_bound
 
 
 def _rays(dtype=torch.float32):

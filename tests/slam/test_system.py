@@ -1,9 +1,7 @@
 """System-level tests on a tiny generated synthetic sequence: robustness, determinism, the e2e CLI run."""
 
 import json
-import math
 
-import numpy as np
 import pytest
 import torch
 
@@ -14,7 +12,8 @@ from tests.slam.conftest import TINY
 
 
 def _system(tiny_seq, extra=()):
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *extra])
     return SLAM(cfg, load_data(cfg))
@@ -38,7 +37,8 @@ class _Holes:
 
 
 def test_invalid_depth_frame_is_skipped(tiny_seq):
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY])
     s = SLAM(cfg, _Holes(load_data(cfg), 4))
@@ -92,7 +92,7 @@ def test_deterministic_for_a_seed(tiny_seq):
 
 
 def test_cuda_request_without_gpu_is_a_user_error():
-    from slam.system import resolve_device
+    from slam.setup import resolve_device
 
     if torch.cuda.is_available():
         pytest.skip("a GPU exists")

@@ -18,7 +18,8 @@ def _fresh_copy(system):
 
 @pytest.mark.parametrize("rep", ["lrslam", "sa_sa", "eslam"])
 def test_tracking_after_mapping_sees_the_map_mapping_wrote(tiny_seq, rep):
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.every_frame=1",
                                     f"representation={rep}"])

@@ -40,7 +40,8 @@ def test_each_check_names_its_reason():
 
 
 def _system(tiny_seq, extra=()):
-    from slam.system import SLAM, load_data
+    from slam.setup import load_data
+    from slam.system import SLAM
 
     # a map trained enough for tracking to pull a wrong start back (TINY's 5 warm-up iterations are not)
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=8", "mapping.every_frame=1",

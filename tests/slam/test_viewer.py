@@ -87,7 +87,7 @@ def test_recording_of_a_short_run(tiny_seq, tmp_path):
     depth = data["/world/camera/image/depth"]
     assert depth["DepthImage:meter"][0][1] == [1000.0]
     mm = np.frombuffer(bytes(depth["DepthImage:buffer"][0][1][0]), dtype=np.uint16).reshape(60, 80)
-    from slam.system import load_data
+    from slam.setup import load_data
 
     true_depth = np.asarray(load_data(cfg)[0].depth)
     np.testing.assert_allclose(mm / 1000.0, true_depth, atol=6e-4)
@@ -109,7 +109,7 @@ def test_recording_of_a_short_run(tiny_seq, tmp_path):
 
     # a second observer with a preview mesh after every keyframe (frames 0 and 4 here), then the final one
     meshes = read_recording(previews)["/world/mesh"]["Mesh3D:vertex_positions"]
-    from slam.system import frame_indices
+    from slam.setup import frame_indices
 
     keyframes = [k for k in frame_indices(24, cfg)
                  if k % cfg.mapping.every_frame == 0 and k % cfg.mapping.keyframe_every == 0]

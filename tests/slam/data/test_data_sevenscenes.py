@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from slam.data import Intrinsics, SevenScenesDataset, detect_layout, load_dataset
 from slam.errors import SlamInputError

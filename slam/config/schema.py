@@ -1,0 +1,235 @@
+"""The configuration's schema: every key of a SLAM run as a typed dataclass field, with its default and its range.
+
+``num(default, lo=..., hi=...)`` declares a numeric key's allowed values, ``choice(default, options)`` an
+enumerated one; :mod:`slam.config.load` checks every value against them as a config is read. Defaults are ESLAM's
+(eslam-pipeline.md) unless a field's comment says "ours".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from slam.losses import LossWeights
+
+REPRESENTATIONS = ("lrslam", "eslam", "cp_cp", "sa_sa", "sa_cp", "vm_sa")
+FIELD_KINDS = ("cp", "dense_grid", "six_axis", "triplane", "vector_matrix")  # tdfields.KINDS
+
+
+# --------------------------------------------------------------------------------------------------- ranges
+@dataclass(frozen=True)
+class Range:
+    """The allowed values of a numeric key: ``lo``/``hi`` bounds (None: unbounded), each closed unless
+    ``*_open``. Lists are checked element by element; ``None`` passes where the key is optional."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def ok(self, v: float) -> bool:
+        if v != v:  # NaN
+            return False
+        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
+            return False
+        if self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi):
+            return False
+        return True
+
+    def __str__(self) -> str:
+        parts = []
+        if self.lo is not None:
+            parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
+        if self.hi is not None:
+            parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
+        return " and ".join(parts) or "any number"
+
+
+def num(default, lo=None, hi=None, lo_open=False, hi_open=False, **kw):
+    """A dataclass field with a numeric range (see :class:`Range`), checked by :func:`load_config`."""
+    meta = {"range": Range(lo, hi, lo_open, hi_open)}
+    if callable(default):
+        return field(default_factory=default, metadata=meta, **kw)
+    return field(default=default, metadata=meta, **kw)
+
+
+def choice(default, options: tuple, **kw):
+    """A dataclass field whose value must be one of ``options``."""
+    return field(default=default, metadata={"choices": tuple(options)}, **kw)
+
+
+COUNT = {"lo": 1}          # iteration and pixel counts, sizes
+POSITIVE = {"lo": 0, "lo_open": True}   # lengths, learning rates, scales
+NONNEG = {"lo": 0}         # weights, margins
+FRACTION = {"lo": 0, "hi": 1}
+
+
+@dataclass
+class DataConfig:
+    """Dataset: ``kind`` is passed to ``slam.data.load_dataset`` (``auto``, ``replica``, ``tum``, ``scannet``...);
+    ``path`` null means the bundled synthetic sequence. ``options`` are loader options (crop_edge, crop_size,
+    undistort, ...). ``max_frames`` and ``stride`` subsample the sequence. A frame that cannot be read (missing,
+    truncated, wrong size) is skipped and listed in ``events``; once more than ``max_bad_fraction`` of the
+    sequence's frames were bad, the run stops with an error (after its outputs are written)."""
+
+    kind: str = "auto"
+    path: Optional[str] = None
+    max_frames: Optional[int] = num(None, **COUNT)
+    stride: int = num(1, **COUNT)
+    max_bad_fraction: float = num(0.1, **FRACTION)
+    prefetch: int = num(2, **NONNEG)  # frames read ahead on a background thread (0: on demand)
+    options: dict = field(default_factory=dict)
+
+
+@dataclass
+class FieldSpec:
+    """One quantity's field: ``kind`` (tdfields kind), ``cell_sizes`` per level (coarse, fine) in metres,
+    ``rank`` (cp / six_axis / vector_matrix), ``channels`` per level, ``init_std``."""
+
+    kind: str = choice("cp", FIELD_KINDS)
+    cell_sizes: list = num(lambda: [0.24, 0.06], **POSITIVE)
+    rank: int = num(2, **COUNT)
+    channels: int = num(32, **COUNT)
+    init_std: Optional[float] = num(None, **POSITIVE)  # null: the kind's tdfields default
+
+
+@dataclass
+class SceneConfig:
+    """Scene box and SDF model. ``bound``: ``[[x0,x1],[y0,y1],[z0,z1]]`` or ``auto`` (from the first frames'
+    depth, see ``bound_auto_*``). ``marching_cubes_bound``: null = the bound."""
+
+    bound: Any = "auto"
+    marching_cubes_bound: Any = None
+    bound_dividable: float = num(0.24, **POSITIVE)
+    bound_auto_frames: int = num(10, **COUNT)
+    bound_auto_margin: float = num(1.0, **NONNEG)
+    bound_auto_percentile: float = num(99.0, lo=0, hi=100, lo_open=True)
+    truncation: float = num(0.06, **POSITIVE)
+    learnable_beta: bool = True
+    beta_init: float = num(10.0, **POSITIVE)
+    decoder_hidden: int = num(16, **COUNT)
+
+
+def _weights(fs, center, tail, depth, color):
+    return lambda: LossWeights(fs=fs, center=center, tail=tail, depth=depth, color=color)
+
+
+# the one definition of ESLAM's loss weights (eslam-pipeline.md §3); LossWeights itself lives with the losses
+TRACKING_WEIGHTS = _weights(10.0, 200.0, 50.0, 1.0, 5.0)
+MAPPING_WEIGHTS = _weights(5.0, 200.0, 10.0, 0.1, 5.0)
+
+
+@dataclass
+class RenderingConfig:
+    """Samples per ray (``n_stratified`` in [0, 1.2 D] + ``n_importance`` in D +- 1.5 T), jitter, and
+    ``color_cutoff``: samples whose compositing weight is at most this skip the colour query (0: every sample,
+    as ESLAM)."""
+
+    n_stratified: int = num(32, lo=2)
+    n_importance: int = num(8, **NONNEG)
+    perturb: bool = True
+    color_cutoff: float = num(0.0, lo=0, hi=1, hi_open=True)
+
+
+@dataclass
+class TrackingConfig:
+    iters: int = num(8, **COUNT)
+    pixels: int = num(2000, lo=10)
+    lr_t: float = num(0.001, **POSITIVE)
+    lr_r: float = num(0.001, **POSITIVE)
+    ignore_edge: list = num(lambda: [75, 75], **NONNEG)
+    # the starting pose: ESLAM's constant velocity (const_speed), the previous pose, or depth ICP from the
+    # previous frame started at the constant-velocity guess (ours; slam/odometry.py)
+    init: str = choice("const_speed", ("const_speed", "previous", "icp"))
+    outlier_factor: float = num(10.0, **POSITIVE)
+    # ours: stop once `patience` iterations found no loss below the best by `min_improvement` (0: ESLAM's fixed count)
+    patience: int = num(0, **NONNEG)
+    min_iters: int = num(1, **COUNT)
+    min_improvement: float = num(0.0, lo=0, hi=1, hi_open=True)
+    # ours (slam/tracking_guard.py): a result is implausible when its loss is over lost_loss_factor x the recent
+    # median, fewer than lost_min_inliers of its rays are inliers, or it moved faster than max_speed (m/s) /
+    # max_angular_speed (deg/s); then `recovery` tracks again from several starts. 0 turns a check off.
+    lost_loss_factor: float = num(4.0, **NONNEG)
+    lost_min_inliers: float = num(0.5, **FRACTION)
+    max_speed: float = num(3.0, **NONNEG)
+    max_angular_speed: float = num(360.0, **NONNEG)
+    recovery: bool = True
+    weights: LossWeights = field(default_factory=TRACKING_WEIGHTS)
+
+
+@dataclass
+class MappingConfig:
+    every_frame: int = num(4, **COUNT)
+    keyframe_every: int = num(4, **COUNT)
+    iters: int = num(15, **COUNT)
+    iters_first: int = num(1000, **COUNT)
+    lr_first_factor: float = num(5.0, **POSITIVE)
+    pixels: int = num(4000, **COUNT)
+    lr_decoders: float = num(0.001, **POSITIVE)
+    lr_geometry: float = num(0.005, **POSITIVE)
+    lr_appearance: float = num(0.005, **POSITIVE)
+    window_size: int = num(20, **COUNT)
+    keyframe_selection: str = choice("overlap", ("overlap", "global"))
+    overlap_pixels: int = num(50, **COUNT)
+    overlap_samples: int = num(8, lo=2)
+    joint_opt: bool = True
+    joint_opt_cam_lr: float = num(0.001, **POSITIVE)
+    ba_min_keyframes: int = num(4, **NONNEG)
+    # ours: keyframe images as loaded (float32) or 8-bit colour + float16 depth (compact, 3.2x less memory)
+    keyframe_storage: str = choice("float32", ("float32", "compact"))
+    max_keyframes: int = num(0, **NONNEG)  # ours: 0 keeps all; else the most redundant one goes (bounded memory)
+    weights: LossWeights = field(default_factory=MAPPING_WEIGHTS)
+
+
+@dataclass
+class MeshingConfig:
+    """Mesh extraction: grid ``resolution`` (metres), points per SDF ``batch``, the visibility hull and culling."""
+
+    resolution: float = num(0.01, **POSITIVE)
+    batch: int = num(500000, **COUNT)
+    hull_scale: float = num(1.02, **POSITIVE)
+    hull_points_per_frame: int = num(2000, **COUNT)
+    cull: bool = True
+    cull_depth_test: bool = True
+
+
+@dataclass
+class EvaluationConfig:
+    """Reconstruction metrics against a ground-truth mesh: points sampled per mesh, ICP alignment first, and the
+    number of random views of Depth L1 (0: skip it)."""
+
+    samples: int = num(200000, **COUNT)
+    icp: bool = True
+    depth_l1_views: int = num(1000, **NONNEG)
+
+
+@dataclass
+class Config:
+    """The resolved configuration (written as ``config.yaml`` next to a run's outputs)."""
+
+    name: str = "custom"
+    seed: int = num(0, **NONNEG)
+    device: str = "cpu"
+    threads: int = num(0, **NONNEG)  # 0 = leave torch's default
+    keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.runtime)
+    parallel: bool = False  # mapping on a worker thread beside the tracker (slam.map_worker)
+    checkpoint_every: int = num(0, **NONNEG)  # frames between checkpoints (0: by time, checkpoint_interval_s)
+    checkpoint_interval_s: float = num(60.0, **POSITIVE)  # at most this much work is lost (checkpoint_every: 0)
+    representation: str = choice("lrslam", REPRESENTATIONS)
+    data: DataConfig = field(default_factory=DataConfig)
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    geometry: FieldSpec = field(default_factory=FieldSpec)
+    appearance: FieldSpec = field(
+        default_factory=lambda: FieldSpec(kind="six_axis", cell_sizes=[0.24, 0.03], rank=16, channels=32)
+    )
+    rendering: RenderingConfig = field(default_factory=RenderingConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    meshing: MeshingConfig = field(default_factory=MeshingConfig)
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+

@@ -1,0 +1,80 @@
+"""Setting a run up: the device, the dataset a config names, the frames it processes, the automatic scene box."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from slam.config import Config
+from slam.errors import SlamInputError
+
+
+def resolve_device(name: str) -> torch.device:
+    """``cpu`` / ``cuda`` / ``cuda:N``; a GPU request without CUDA raises :class:`SlamInputError`."""
+    if name.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise SlamInputError(f"device '{name}' requested but CUDA is not available on this machine; use --device cpu")
+        idx = int(name.split(":")[1]) if ":" in name else 0
+        if idx >= torch.cuda.device_count():
+            raise SlamInputError(f"device '{name}' requested but only {torch.cuda.device_count()} GPU(s) exist")
+    elif name != "cpu":
+        raise SlamInputError(f"device must be cpu or cuda, got '{name}'")
+    return torch.device(name)
+
+
+def load_data(cfg: Config):
+    """Open the dataset the config names (the bundled synthetic sequence when ``data.path`` is null)."""
+    from slam.data import load_dataset
+    from slam.data.loader import detect_layout
+
+    path = cfg.data.path
+    kind = cfg.data.kind
+    if path is None:
+        if kind not in ("auto", "synthetic", "replica"):
+            raise SlamInputError(f"preset '{cfg.name}' reads {kind} data: pass its folder with --data PATH")
+        from slam.data.synthetic import default_sequence
+
+        path = str(default_sequence())
+    if kind == "synthetic":
+        kind = "replica"
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise SlamInputError(f"data folder not found: {p}")
+    found = detect_layout(p)
+    if kind != "auto" and found != kind:
+        raise SlamInputError(f"preset '{cfg.name}' expects {kind} data but {p} looks like {found} data "
+                             f"(pick a {found} preset or data.kind=auto)")
+    try:
+        ds = load_dataset(p, kind=found, **cfg.data.options)
+    except SlamInputError:
+        raise
+    except (ValueError, FileNotFoundError, KeyError, OSError, TypeError) as exc:
+        raise SlamInputError(f"{p}: cannot be read as {found} data: {exc}") from None
+    if len(ds) == 0:
+        raise SlamInputError(f"{p}: the dataset has no frames")
+    return ds
+
+
+def frame_indices(n: int, cfg: Config) -> list[int]:
+    idx = list(range(0, n, max(cfg.data.stride, 1)))
+    if cfg.data.max_frames:
+        idx = idx[: cfg.data.max_frames]
+    return idx
+
+
+def auto_bound(depths: list[torch.Tensor], c2w0: torch.Tensor, percentile: float, margin: float) -> list[list[float]]:
+    """Scene box from the first frames' depth (``scene.bound: auto``).
+
+    A cube centred on the first camera whose half-size is the ``percentile``-th percentile of the valid depth
+    of the given frames plus ``margin`` metres. It holds everything those frames see from any orientation at
+    the start, so a camera that mostly rotates (or moves less than ``margin``) stays inside without hand-tuned
+    boxes. Lengths in metres.
+    """
+    vals = torch.cat([d[d > 0].flatten().float().cpu() for d in depths])
+    if vals.numel() == 0:
+        raise SlamInputError("bound=auto: the first frames have no valid depth; give scene.bound explicitly")
+    r = float(np.percentile(vals.numpy(), percentile)) + margin
+    c = c2w0[:3, 3].double().tolist()
+    return [[c[a] - r, c[a] + r] for a in range(3)]

@@ -1,0 +1,255 @@
+"""Running a sweep: one run in its folder (reused when finished, resumed when interrupted), the engines that run
+many (in this process, or as Ray tasks), and :func:`execute`."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import logging
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Callable, Sequence
+
+from slam.errors import SlamInputError
+
+from slam.sweep.plan import _TRACEBACK_LINES, RunSpec, _flatten, _run_name
+from slam.sweep.summary import summarize, write_summary
+
+
+# --------------------------------------------------------------------------------------------------- one run
+def finished_metrics(run_dir: str | Path) -> dict | None:
+    """The metrics of a finished run in ``run_dir``, or None (no ``metrics.json``, unreadable, or partial)."""
+    path = Path(run_dir) / "metrics.json"
+    try:
+        m = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(m, dict) or m.get("partial"):
+        return None
+    return m
+
+
+def interrupted(run_dir: str | Path) -> bool:
+    """True for a run stopped by SIGINT / SIGTERM: partial metrics without an error, and its checkpoint."""
+    try:
+        m = json.loads((Path(run_dir) / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return (isinstance(m, dict) and bool(m.get("partial")) and not m.get("error")
+            and (Path(run_dir) / "checkpoint.pt").is_file())
+
+
+def failed_record(spec: RunSpec, exc: BaseException, tb: str | None = None) -> dict:
+    """The record of a run that raised ``exc``: one-line error and the traceback's last lines."""
+    msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    lines = (tb or "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))).rstrip().splitlines()
+    return {**spec.identity(), "status": "failed", "error": f"{type(exc).__name__}: {msg}".rstrip(": "),
+            "traceback": "\n".join(lines[-_TRACEBACK_LINES:])}
+
+
+def run_one(spec: RunSpec) -> dict:
+    """Run one sweep entry into its folder and return its record; never raises for a failing run.
+
+    The full traceback of a failure also goes to ``run_dir/error.txt``.
+    """
+    from slam.config import load_config
+    from slam.runner import run_to_folder
+
+    t0 = time.perf_counter()
+    try:
+        with contextlib.ExitStack() as stack:
+            if spec.backend is not None:
+                from tdfields import kernels
+
+                stack.enter_context(kernels.use_backend(spec.backend))
+            cfg = load_config(spec.preset, spec.config_overrides())
+            metrics = run_to_folder(cfg, spec.run_dir, progress=spec.progress, mesh=spec.mesh, resume=spec.resume)
+    except Exception as exc:
+        tb = traceback.format_exc()
+        try:
+            Path(spec.run_dir).mkdir(parents=True, exist_ok=True)
+            (Path(spec.run_dir) / "error.txt").write_text(tb)
+        except OSError:
+            pass
+        rec = failed_record(spec, exc, tb)
+        rec["wall_s"] = time.perf_counter() - t0
+        return rec
+    return {**metrics, **spec.identity(), "status": "ok", "wall_s": time.perf_counter() - t0}
+
+
+# --------------------------------------------------------------------------------------------------- engines
+class SerialEngine:
+    """Runs every spec in this process, one after another (debugging, tests, machines without Ray)."""
+
+    name = "serial"
+
+    def run(self, specs: Sequence[RunSpec], on_result: Callable[[dict], None]) -> None:
+        for spec in specs:
+            on_result(run_one(spec))
+
+
+def require_ray():
+    """Import and return ``ray``; SlamInputError naming the install command if it is missing."""
+    try:
+        import ray
+    except ImportError:
+        from slam._deps import install_command
+
+        raise SlamInputError(f"lrslam sweep runs on Ray, which is not installed; install the sweep extra: "
+                             f"{install_command('sweep')} (or: python3 -m pip install \"ray>=2.9\")") from None
+    return ray
+
+
+class RayEngine:
+    """One Ray task per run (``num_cpus = cpus_per_run``), results handled as they finish.
+
+    Args:
+        address: a Ray cluster's address (``ray.init(address=...)``); None starts a local Ray for the sweep
+            and stops it afterwards. A Ray already initialised in this process is used as it is.
+        cpus_per_run: CPUs Ray reserves for each run (also its torch thread count, see :func:`plan`).
+        num_cpus: CPUs of the local Ray (None: all of this machine's); ignored with ``address``.
+        init_kwargs: more ``ray.init`` arguments.
+
+    Workers import ``slam`` and ``tdfields`` from where this process does: a local Ray gets this checkout on
+    its ``PYTHONPATH``; a cluster gets both packages shipped as ``py_modules`` (their dependencies must be
+    installed on every node, and data folders must exist there under the same path).
+    """
+
+    def __init__(self, address: str | None = None, cpus_per_run: int = 1, num_cpus: int | None = None,
+                 init_kwargs: dict | None = None):
+        self.ray = require_ray()
+        self.address, self.cpus_per_run, self.num_cpus = address, cpus_per_run, num_cpus
+        self.init_kwargs = dict(init_kwargs or {})
+        self.name = f"ray {self.ray.__version__}"
+
+    def _init(self) -> bool:
+        ray = self.ray
+        if ray.is_initialized():
+            return False
+        import slam
+        import tdfields
+
+        kw = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR}
+        if self.address is None:
+            root = str(Path(slam.__file__).resolve().parents[1])
+            path = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)
+            kw.update(num_cpus=self.num_cpus, runtime_env={"env_vars": {"PYTHONPATH": path}})
+        else:
+            kw.update(address=self.address, runtime_env={"py_modules": [slam, tdfields]})
+        kw.update(self.init_kwargs)
+        try:
+            ray.init(**kw)
+        except (ConnectionError, ValueError, RuntimeError) as exc:
+            where = self.address or "a local Ray"
+            raise SlamInputError(f"cannot start or reach {where}: {str(exc).strip().splitlines()[0]}") from None
+        return True
+
+    def run(self, specs: Sequence[RunSpec], on_result: Callable[[dict], None]) -> None:
+        ray = self.ray
+        started = self._init()
+        try:
+            # no automatic retry: a run that crashed its worker would most likely crash it again, and the
+            # record (then a re-run of the sweep) is the better way to learn about it
+            task = ray.remote(num_cpus=self.cpus_per_run, max_retries=0)(run_one)
+            pending = {task.remote(spec): spec for spec in specs}
+            try:
+                while pending:
+                    done, _ = ray.wait(list(pending), num_returns=1)
+                    for ref in done:
+                        spec = pending.pop(ref)
+                        try:
+                            rec = ray.get(ref)
+                        except Exception as exc:  # the worker died (out of memory, a signal, a lost node)
+                            rec = failed_record(spec, exc)
+                        on_result(rec)
+            except BaseException:
+                for ref in pending:
+                    ray.cancel(ref, force=True)
+                raise
+        finally:
+            if started:
+                ray.shutdown()
+
+
+# --------------------------------------------------------------------------------------------------- running
+def execute(specs: Sequence[RunSpec], engine, out: str | Path | None = None,
+            log: Callable[[str], None] | None = None, reuse: bool = True) -> dict:
+    """Run the specs on ``engine`` and return the summary (also written to ``out`` when given).
+
+    With ``reuse`` a finished run folder (same config) is not run again; without it every spec runs (a
+    benchmark after a code change). ``summary.json`` / ``summary.md`` are rewritten after every run, so an
+    interrupted sweep keeps what it did. Records are in plan order.
+    """
+    from slam.config import load_config
+
+    log = log or (lambda s: print(s, file=sys.stderr))
+    if len({s.run_dir for s in specs}) != len(specs):
+        dup = next(s.run_dir for i, s in enumerate(specs) if any(s.run_dir == t.run_dir for t in specs[:i]))
+        raise SlamInputError(f"two runs of the sweep would write to the same folder {dup}")
+    records: dict[str, dict] = {}
+    todo = []
+    for spec in specs:
+        m = finished_metrics(spec.run_dir) if reuse else None
+        if m is None:
+            if reuse and interrupted(spec.run_dir):
+                _check_same_config(spec, load_config(spec.preset, spec.config_overrides()).to_dict())
+                spec = dataclasses.replace(spec, resume=True)
+            todo.append(spec)
+            continue
+        _check_same_config(spec, load_config(spec.preset, spec.config_overrides()).to_dict())
+        records[spec.run_dir] = {**m, **spec.identity(), "status": "ok", "reused": True}
+    engine_name = getattr(engine, "name", type(engine).__name__)
+
+    def current() -> dict:
+        return summarize([records[s.run_dir] for s in specs if s.run_dir in records], engine_name)
+
+    if records:
+        log(f"{len(records)} of {len(specs)} runs already finished: reused")
+    if any(s.resume for s in todo):
+        log(f"{sum(s.resume for s in todo)} interrupted runs go on from their checkpoints")
+    done = [0]
+
+    def on_result(rec: dict) -> None:
+        records[rec["run_dir"]] = rec
+        done[0] += 1
+        log(f"[{done[0]}/{len(todo)}] {_run_name(rec)}: {_short(rec)}")
+        if out is not None:
+            write_summary(out, current())
+
+    if todo:
+        engine.run(todo, on_result)
+    summary = current()
+    if out is not None:
+        write_summary(out, summary)
+    return summary
+
+
+def _check_same_config(spec: RunSpec, planned: dict) -> None:
+    """A finished folder is only reused for the same config (threads aside), else the numbers would lie."""
+    import yaml
+
+    path = Path(spec.run_dir) / "config.yaml"
+    try:
+        saved = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return
+    a, b = _flatten(saved), _flatten(planned)
+    diff = sorted(k for k in set(a) | set(b) if k != "threads" and a.get(k) != b.get(k))
+    if diff:
+        k = diff[0]
+        raise SlamInputError(f"{spec.run_dir} holds a finished run with another config ({k}: {a.get(k)!r} there, "
+                             f"{b.get(k)!r} now); use another --out or remove that folder")
+
+
+def _short(rec: dict) -> str:
+    if rec["status"] != "ok":
+        return f"FAILED {rec.get('error')}"
+    ate = rec.get("ate_rmse_m")
+    ate_s = "-" if ate is None else f"{100 * ate:.2f} cm"
+    return f"ok, ATE RMSE {ate_s}, FPT {rec.get('fpt_s', float('nan')):.3f} s, {rec.get('wall_s', 0):.0f} s"
+
+
