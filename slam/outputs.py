@@ -72,6 +72,10 @@ def trajectory_metrics(system, out: Path | None = None, plot: bool = True) -> di
         "version": tdfields.__version__,
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "events": system.state.events,
+        "tracking_iters_mean": (float(np.mean([t["iters"] for t in system.state.tracking]))
+                                if system.state.tracking else None),
+        "frames_lost": sum(1 for e in system.state.events if e.get("lost")),
+        "frames_recovered": sum(1 for e in system.state.events if e.get("recovered")),
     }
     metrics.update(ate_rmse_m=None, ate_mean_m=None)
     if system.gt is not None and len(system.state.est) >= 3:
@@ -89,6 +93,26 @@ def trajectory_metrics(system, out: Path | None = None, plot: bool = True) -> di
                 except Exception as exc:  # plotting must not lose a run
                     log.warning("trajectory plot failed: %s", exc)
     return metrics
+
+
+def write_frames(system, out: Path) -> None:
+    """``frames.csv``: one row per processed frame (position, dataset frame, wall seconds, trusted, and for tracked
+    frames the best loss, the iterations run and the inlier share)."""
+    import csv
+    import io
+
+    st = system.state
+    tracked = {t["frame"]: t for t in st.tracking}
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["k", "frame", "seconds", "trusted", "tracking_loss", "tracking_iters", "tracking_inliers"])
+    for k in range(len(st.est)):
+        i = int(system.indices[k])
+        t = tracked.get(i, {})
+        sec = st.frame_times[k] if k < len(st.frame_times) else ""
+        w.writerow([k, i, f"{sec:.4f}" if sec != "" else "", int(st.trusted[k]), t.get("loss", ""), t.get("iters", ""),
+                    t.get("inliers", "")])
+    atomic_write_text(out / "frames.csv", buf.getvalue())
 
 
 def write_metrics(metrics: dict, out: Path) -> None:

@@ -27,7 +27,7 @@ from slam.checkpoint import load_run, restore, save_checkpoint
 from slam.config import Config, config_from_dict, save_config
 from slam.errors import SlamInputError
 from slam.observers import Observer
-from slam.outputs import trajectory_metrics, write_mesh, write_metrics, write_trajectories
+from slam.outputs import trajectory_metrics, write_frames, write_mesh, write_metrics, write_trajectories
 from slam.setup import load_data, resolve_device
 from slam.system import SLAM
 
@@ -87,6 +87,7 @@ def _partial_outputs(system: SLAM, out: Path, error: str | None = None, checkpoi
         save_checkpoint(system, out / "checkpoint.pt")
     if system.state.est:
         write_trajectories(system, out)
+        write_frames(system, out)
     metrics = trajectory_metrics(system, out)
     metrics.update(partial=True, frames_done=len(system.state.est), frames_total=len(system.indices))
     if error:
@@ -146,6 +147,7 @@ def run_to_folder(cfg: Config, out: str | Path, progress: bool = True, mesh: boo
                 raise RunInterrupted(caught[0], out, len(system.state.est), len(system.indices))
         t_loop = time.perf_counter() - t_start
         write_trajectories(system, out)
+        write_frames(system, out)
         save_checkpoint(system, out / "checkpoint.pt")
         metrics = trajectory_metrics(system, out)
         metrics.update(loop_s=t_loop, resumed_from=start if ckpt is not None else None,

@@ -143,8 +143,14 @@ def test_end_to_end_run(tiny_seq, tmp_path):
 
     mesh = trimesh.load(out / "mesh.ply", process=False)
     assert len(mesh.faces) > 100
-    for name in ("trajectory.txt", "trajectory_gt.txt", "trajectory.png", "config.yaml", "checkpoint.pt"):
+    for name in ("trajectory.txt", "trajectory_gt.txt", "trajectory.png", "config.yaml", "checkpoint.pt", "frames.csv"):
         assert (out / name).is_file(), name
+    import csv
+
+    rows = list(csv.DictReader((out / "frames.csv").open()))
+    assert [int(r["k"]) for r in rows] == list(range(16)) and all(r["trusted"] == "1" for r in rows)
+    assert rows[0]["tracking_iters"] == "" and all(int(r["tracking_iters"]) >= 1 for r in rows[1:])
+    assert m["tracking_iters_mean"] == sum(int(r["tracking_iters"]) for r in rows[1:]) / 15
     # re-extract from the checkpoint
     assert main(["mesh", str(out / "checkpoint.pt"), "--resolution", "0.08", "--out", str(tmp_path / "m.ply")]) == 0
     assert (tmp_path / "m.ply").stat().st_size > 0
