@@ -31,6 +31,19 @@ def _dtype_name(dtype: torch.dtype) -> str:
     return {torch.float32: "float32", torch.float64: "float64"}[dtype]
 
 
+def _host(t: torch.Tensor) -> torch.Tensor:
+    """``t`` as a tensor numba can read: detached and contiguous, with no torch op where none is needed (a field
+    query runs a few of these per factor, and at tracking sizes the dispatch of each costs as much as its work)."""
+    if t.requires_grad:
+        t = t.detach()
+    return t if t.is_contiguous() else t.contiguous()
+
+
+def _rows(t: torch.Tensor) -> np.ndarray:
+    """``[..., F]`` tensor -> ``[rows, F]`` numpy view of the same memory (numpy reshapes need no torch op)."""
+    return t.numpy().reshape(-1, t.shape[-1])
+
+
 def _sizes(program: Program, grids) -> np.ndarray:
     sizes = np.ones((len(grids), 3), np.int64)
     for f, (g, axes) in enumerate(zip(grids, program.factor_axes)):
@@ -44,10 +57,10 @@ class _FusedProgram(torch.autograd.Function):
         from tdfields.kernels.generated import forward_kernel
 
         dtype = factors[0].dtype
-        grids = [t.detach().contiguous() for t in factors]
-        views = [g.view(-1, g.shape[-1]).numpy() for g in grids]
+        grids = [_host(t) for t in factors]
+        views = [_rows(g) for g in grids]
         widths = tuple(v.shape[1] for v in views)
-        c = coords.detach().to(dtype).contiguous()
+        c = _host(coords if coords.dtype == dtype else coords.to(dtype))
         sizes = _sizes(program, grids)
         out = torch.empty(c.shape[1], program.out_dim, dtype=dtype)
         kernel = forward_kernel(program, widths, _dtype_name(dtype))
@@ -85,8 +98,8 @@ class _FusedProgram(torch.autograd.Function):
         rows = [(g.numel() // g.shape[-1], g.shape[-1]) for g in grids]
         buffers = [[torch.zeros(rows[f], dtype=dtype) for f in range(len(grids)) if want[f]] for _ in range(parts)]
         grad_coords = torch.zeros_like(c) if want_coords else torch.zeros((1, 1, 3), dtype=dtype)
-        views = [g.view(-1, g.shape[-1]).numpy() for g in grids]
-        go = grad_out.detach().to(dtype).contiguous()
+        views = [_rows(g) for g in grids]
+        go = _host(grad_out if grad_out.dtype == dtype else grad_out.to(dtype))
         chans = np.asarray([ctx.widths[t[0]] // k for t, k in zip(ctx.program.terms, ctx.program.ranks)], np.int64)
         common = (*views, ctx.sizes, chans, c.numpy(), go.numpy())
         passes = [(want, want_coords)]
@@ -192,11 +205,12 @@ class _FusedGridCoords(torch.autograd.Function):
     def forward(ctx, points, lo, extent, top):
         from tdfields.kernels.coords import grid_coords_forward
 
-        p = points.detach().contiguous()
+        p = _host(points)
         out = torch.empty(lo.shape[0], p.shape[0], 3, dtype=p.dtype)
-        args = (p.numpy(), lo.numpy(), extent.numpy(), top.numpy(), out.numpy())
+        args = (p.numpy(), lo, extent, top, out.numpy())
         run([lambda a=a, b=b: grid_coords_forward(*args, a, b) for a, b in split(p.shape[0], parts_for(p.shape[0]))])
-        ctx.save_for_backward(p, lo, extent, top)
+        ctx.save_for_backward(p)
+        ctx.box = (lo, extent, top)
         return out
 
     @staticmethod
@@ -205,11 +219,11 @@ class _FusedGridCoords(torch.autograd.Function):
 
         if not ctx.needs_input_grad[0]:
             return None, None, None, None
-        p, lo, extent, top = ctx.saved_tensors
+        (p,) = ctx.saved_tensors
         with torch.no_grad():
-            g = grad.detach().to(p.dtype).contiguous()
+            g = _host(grad if grad.dtype == p.dtype else grad.to(p.dtype))
             out = torch.empty_like(p)
-            args = (p.numpy(), lo.numpy(), extent.numpy(), top.numpy(), g.numpy(), out.numpy())
+            args = (p.numpy(), *ctx.box, g.numpy(), out.numpy())
             run([lambda a=a, b=b: grid_coords_backward(*args, a, b)
                  for a, b in split(p.shape[0], parts_for(p.shape[0]))])
         return guard_second_order(out), None, None, None
@@ -228,11 +242,12 @@ def fused_grid_coords(points: torch.Tensor, boxes, shapes) -> torch.Tensor:
     """
     if numba_module() is None:
         raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
-    dtype = points.dtype
-    box = torch.stack([b.detach().to(device="cpu", dtype=dtype) for b in boxes])
-    lo = box[:, :, 0].contiguous()
-    extent = (box[:, :, 1] - box[:, :, 0]).contiguous()
-    top = torch.as_tensor([[n - 1 for n in s] for s in shapes], dtype=dtype)
+    dt = np.float32 if points.dtype == torch.float32 else np.float64
+    # the per-level constants in numpy: a dozen tiny torch ops per query otherwise (boxes are buffers, no grad)
+    box = np.stack([np.asarray(b.detach().cpu() if b.requires_grad else b.cpu(), dtype=dt) for b in boxes])
+    lo = np.ascontiguousarray(box[:, :, 0])
+    extent = np.ascontiguousarray(box[:, :, 1] - box[:, :, 0])
+    top = np.asarray([[n - 1 for n in s] for s in shapes], dtype=dt)
     return _FusedGridCoords.apply(points, lo, extent, top)
 
 
