@@ -89,6 +89,7 @@ def save_checkpoint(system, path: Path) -> None:
 
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
+    system.mapper.wait_idle()  # the scene and the keyframes are the worker's while a call runs
     extra = system.checkpoint_extra()
     extra["run"] = run_state(system)
     tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=extra)

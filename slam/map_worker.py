@@ -12,7 +12,9 @@ the frame numbers, never by timing, so a parallel run repeats exactly too.
 
 The tracker never sees a half-written map: in parallel mode it tracks on its own copy of the scene, which is
 overwritten only from a snapshot the mapper took at the end of a call (a ``state_dict`` copy, a few MB), while
-the mapper thread is already on to the next call or idle.
+the mapper thread is already on to the next call or idle. Only the worker touches ``scene`` and the keyframes
+while a call runs; anything else that reads them (a checkpoint, a preview mesh) first waits with
+:meth:`MapWorker.wait_idle`.
 """
 
 from __future__ import annotations
@@ -139,6 +141,15 @@ class MapWorker:
             with torch.no_grad():
                 self.track_scene.load_state_dict(self.scene.state_dict())
         return out
+
+    def wait_idle(self) -> None:
+        """Wait until no call is running (their results stay queued for the schedule): before anything outside the
+        worker reads ``scene`` or the keyframes (a checkpoint, a preview mesh)."""
+        for _, f in self._queue:
+            if not isinstance(f, MapDone):
+                t0 = time.perf_counter()
+                f.result()
+                self.wait_s += time.perf_counter() - t0
 
     @property
     def busy(self) -> bool:

@@ -167,15 +167,19 @@ def run_hull_points(system) -> np.ndarray:
 
 
 def run_mesh(system, resolution: float | None = None, cull: bool | None = None) -> trimesh.Trimesh:
-    """A run's mesh with its config's meshing settings: marching cubes inside the visibility hull, then (unless
+    """A run's mesh with its config's meshing settings, from the map the tracker reads (mid-run: the latest one the
+    schedule has handed over; at the end: the final map): marching cubes inside the visibility hull, then (unless
     ``cull`` is False) culled with every processed frame's estimated pose, and depth where the config asks for the
     depth test; unreadable frames do not count as views."""
     from slam.eval import cull_mesh
 
     mcfg = system.cfg.meshing
+    system.mapper.wait_idle()  # parallel mode: the keyframes (hull) are the mapper's while a call runs
     pts = run_hull_points(system)
     hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
-    mesh = extract_mesh(system.scene, system.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, system.device)
+    # the tracker's copy of the map: the loop's thread owns it (after finish() it equals the mapper's scene)
+    scene = system.mapper.track_scene
+    mesh = extract_mesh(scene, system.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, system.device)
     if not (mcfg.cull if cull is None else cull) or not len(mesh.faces):
         return mesh
     poses = system.poses_matrix().copy()

@@ -63,3 +63,24 @@ def test_a_parallel_run_repeats_exactly(tiny_seq, monkeypatch):
     b, _, _ = _run(tiny_seq, monkeypatch, True, 2)
     assert torch.equal(torch.stack(a.state.est), torch.stack(b.state.est))
     assert _digest(a.scene) == _digest(b.scene)
+
+
+def test_a_mesh_mid_run_waits_for_the_mapper_instead_of_freezing_its_scene(tiny_seq):
+    """An observer meshing every frame (the viewer's previews) while the mapper thread optimises: the mesh comes
+    from the tracker's copy, after the running call, and no mapping step loses its gradients."""
+    from slam.observers import Observer
+    from slam.setup import load_data
+    from slam.system import SLAM
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=8", "mapping.every_frame=1",
+                                    "parallel=true", "meshing.resolution=0.1"])
+    faces = []
+
+    class Mesher(Observer):
+        def on_frame(self, system, rec):
+            faces.append(len(system.mesh(cull=False).faces))
+
+    s = SLAM(cfg, load_data(cfg))
+    s.run(progress=False, observers=[Mesher()])
+    s.close()
+    assert len(faces) == 8 and not [e for e in s.state.events if "mapping" in e["event"]]
