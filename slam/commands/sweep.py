@@ -37,7 +37,8 @@ def register(subparsers) -> None:
     p.add_argument("--address", default=None, metavar="RAY_ADDRESS",
                    help="Ray cluster to run on (ray.init(address=...)); default: start a local Ray")
     p.add_argument("--cpus-per-run", type=int, default=1, metavar="K",
-                   help="CPUs Ray gives each run, also its torch thread count (default 1)")
+                   help="CPUs Ray gives each loop thread of a run, also its torch thread count (default 1); "
+                        "a run in parallel mode (tracker + mapper threads) gets twice K")
     p.add_argument("--num-cpus", type=int, default=None, metavar="N",
                    help="CPUs of the local Ray (default: all of this machine's)")
     p.add_argument("--no-mesh", action="store_true", help="skip mesh extraction and reconstruction metrics")

@@ -20,6 +20,7 @@ from slam.sweep.plan import RunSpec, plan, split_preset
 from slam.sweep.runs import (
     RayEngine,
     SerialEngine,
+    cpus_for,
     execute,
     failed_record,
     finished_metrics,
@@ -29,6 +30,6 @@ from slam.sweep.runs import (
 )
 from slam.sweep.summary import group_stats, summarize, summary_markdown, write_summary
 
-__all__ = ["RunSpec", "plan", "split_preset", "RayEngine", "SerialEngine", "execute", "failed_record",
+__all__ = ["RunSpec", "plan", "split_preset", "RayEngine", "SerialEngine", "cpus_for", "execute", "failed_record",
            "finished_metrics", "interrupted", "require_ray", "run_one", "group_stats", "summarize",
            "summary_markdown", "write_summary"]

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from slam.errors import SlamInputError
-from slam.sweep import (RunSpec, SerialEngine, execute, failed_record, finished_metrics, plan, summarize,
+from slam.sweep import (RunSpec, SerialEngine, cpus_for, execute, failed_record, finished_metrics, plan, summarize,
                         summary_markdown)
 
 # 4 frames, a few iterations: every stage of a run, in a few seconds
@@ -28,6 +28,15 @@ def test_plan_names_and_orders_runs(tiny_seq, tmp_path):
     assert all(Path(s.run_dir).parent == (tmp_path / "sw").resolve() for s in specs)
     assert specs[1].config_overrides() == ["representation=lrslam", "seed=1", "threads=1", "tracking.iters=2",
                                            f"data.path={Path(tiny_seq).resolve()}"]
+
+
+def test_a_parallel_mode_run_reserves_a_cpu_per_loop_thread(tiny_seq, tmp_path):
+    par, seq = (plan([f"synthetic={tiny_seq}"], ["lrslam"], 1, tmp_path / n, overrides=[f"parallel={v}"], threads=1)[0]
+                for n, v in (("p", "true"), ("s", "false")))
+    assert cpus_for(par, 1) == 2 and cpus_for(seq, 1) == 1 and cpus_for(par, 2) == 4
+    assert cpus_for(par, 1, available=1) == 1  # never more than the cluster has: the task would wait forever
+    base = plan([f"synthetic={tiny_seq}"], ["lrslam"], 1, tmp_path / "b", threads=1)[0]
+    assert cpus_for(base, 1) == 2  # parallel is the base default
 
 
 def test_plan_slashes_and_same_preset_twice(tiny_seq, tmp_path):
