@@ -115,6 +115,15 @@ class _FusedProgram(torch.autograd.Function):
         return (None, grad_coords.to(ctx.coords_dtype) if want_coords else None, *grads)
 
 
+def _check_inputs(program: Program, factors, coords: torch.Tensor, kernel: str) -> None:
+    """What both generated kernels assume: the program's factors, ``[levels, N, 3]`` coordinates, <= 3 factors a term."""
+    program.check(factors)
+    if coords.dim() != 3 or coords.shape[0] != program.num_levels or coords.shape[2] != 3:
+        raise ValueError(f"coords must be [{program.num_levels}, N, 3], got {tuple(coords.shape)}")
+    if max(len(t) for t in program.terms) > 3:
+        raise ValueError(f"the {kernel} kernel multiplies at most 3 factors per term; use set_backend('torch')")
+
+
 def fused_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Tensor:
     """Fused equivalent of :func:`tdfields.program.evaluate_reference` (CPU, first derivatives only).
 
@@ -128,11 +137,7 @@ def fused_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Ten
     """
     if numba_module() is None:
         raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
-    program.check(factors)
-    if coords.dim() != 3 or coords.shape[0] != program.num_levels or coords.shape[2] != 3:
-        raise ValueError(f"coords must be [{program.num_levels}, N, 3], got {tuple(coords.shape)}")
-    if max(len(t) for t in program.terms) > 3:
-        raise ValueError("the fused kernel multiplies at most 3 factors per term; use set_backend('torch')")
+    _check_inputs(program, factors, coords, "fused")
     return _FusedProgram.apply(program, coords, *factors)
 
 
@@ -145,11 +150,7 @@ def triton_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Te
     module = triton_module()
     if module is None:
         raise RuntimeError("the Triton kernel needs triton; pip install triton, or set_backend('torch')")
-    program.check(factors)
-    if coords.dim() != 3 or coords.shape[0] != program.num_levels or coords.shape[2] != 3:
-        raise ValueError(f"coords must be [{program.num_levels}, N, 3], got {tuple(coords.shape)}")
-    if max(len(t) for t in program.terms) > 3:
-        raise ValueError("the Triton kernel multiplies at most 3 factors per term; use set_backend('torch')")
+    _check_inputs(program, factors, coords, "Triton")
     return module.TritonProgram.apply(program, coords, *factors)
 
 

@@ -148,7 +148,7 @@ def test_preset_loads_and_validates():
     assert "7scenes" in list_presets() and cfg.name == "7scenes"
     assert cfg.data.kind == "7scenes" and cfg.data.options == {"crop_size": [240, 320], "crop_edge": 4}
     assert (cfg.rendering.n_stratified, cfg.rendering.n_importance) == (16, 8)
-    assert (cfg.tracking.iters, cfg.tracking.pixels, cfg.mapping.every_frame) == (20, 400, 4)
+    assert (cfg.tracking.iters, cfg.tracking.pixels, cfg.mapping.every_frame, cfg.mapping.keyframe_every) == (20, 400, 1, 1)
     assert cfg.scene.bound == "auto" and cfg.representation == "lrslam"
 
 
