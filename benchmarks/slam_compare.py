@@ -19,7 +19,7 @@ Accuracy is reported as mean ± sample standard deviation over the seeds, with e
 Runs go through :mod:`slam.sweep` (the engine of ``lrslam sweep``): ``--jobs 1`` (the default) runs them one after
 another in this process (:class:`slam.sweep.SerialEngine`, with progress bars), ``--jobs J`` runs J at once as
 Ray tasks on a local Ray with J CPUs, one torch thread each (a run in parallel mode reserves two CPUs, so
-``--jobs 2`` on two cores runs those one at a time: two at once ran 7.5x slower each), and ``--address`` sends them to a Ray cluster
+``--jobs 2`` on two cores runs those one at a time: two at once, beside a third run, ran 7.5x slower each), and ``--address`` sends them to a Ray cluster
 (:class:`slam.sweep.RayEngine`). Accuracy is exactly the same as run one by one (a run is deterministic for its
 seed), but frame times then share the CPU, so timing tables use ``--jobs 1``. Every run is run afresh (no
 reuse of earlier run folders: a benchmark measures the code as it is).

@@ -108,9 +108,9 @@ def cpus_for(spec: RunSpec, cpus_per_run: int, available: float | None = None) -
     """CPUs to reserve for one run: ``cpus_per_run`` per loop thread, i.e. twice that for a run in parallel mode
     (``parallel: true``: tracker and mapper each run one torch thread), capped at ``available``.
 
-    Why: two parallel-mode runs at once on a 2-core machine ran 7.5x slower each (frame time 5.31 vs 0.71 s, the
-    same trajectory): their four busy threads contend for two cores and for each process's GIL, which is handed
-    back and forth at every torch call. Reserving two CPUs runs them one after the other, twice the throughput.
+    Why: two parallel-mode runs at once on a 2-core machine (a third CPU-bound run beside them) ran 7.5x slower
+    each (frame time 5.31 vs 0.71 s, the same trajectory): more busy threads than cores, and each process's GIL
+    handed back and forth at every torch call. Reserving two CPUs runs them one after the other.
     """
     from slam.config import load_config
 
