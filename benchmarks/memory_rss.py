@@ -1,7 +1,7 @@
 """Resident memory over a long run: RSS every 50 frames of a 1000-frame synthetic sequence, against the keyframe
 store's bytes, for the default keyframe storage and the options that bound it.
 
-After the first 100 frames a run's memory should grow only by its keyframe store (one keyframe per
+After the first 100 frames a run's memory should grow only with what it keeps, mostly its keyframe store (one keyframe per
 ``keyframe_every`` mapped frames, ``slam.keyframes.bytes_per_keyframe`` each). The script records, per setting,
 RSS (``/proc/self/status`` VmRSS), the keyframe count and the store's bytes, fits RSS growth after frame 100
 against the store's growth, and reports the ATE of each setting (the bound's cost in accuracy).
