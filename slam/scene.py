@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 import tdfields
+from tdfields.step_scale import scaled_param_groups
 from slam.config import Config, FieldSpec
 
 _RANKED = ("cp", "six_axis", "vector_matrix")
@@ -68,17 +69,18 @@ class SceneModel(nn.Module):
         """``[P, 3]`` world metres -> ``[P, 3]`` RGB in (0, 1)."""
         return self.rgb_decoder(self.fields["appearance"](points))
 
-    def param_groups(self, cfg: Config, factor: float = 1.0) -> list[dict]:
-        """Adam groups with the mapping learning rates (decoders incl. beta, geometry, appearance)."""
+    def param_groups(self, cfg: Config, factor: float = 1.0, scaling: str = "none") -> list[dict]:
+        """Adam groups with the mapping learning rates (decoders incl. beta, geometry, appearance).
+
+        ``scaling`` (``none`` / ``matched`` / ``lift``): the field factors' rates times their step scales as the
+        factors are now (:func:`tdfields.scaled_param_groups`; tri-planes and grids keep exactly their rate)."""
         m = cfg.mapping
         dec = list(self.sdf_decoder.parameters()) + list(self.rgb_decoder.parameters())
         if isinstance(self.beta, nn.Parameter):
             dec.append(self.beta)
-        return [
-            {"params": dec, "lr": m.lr_decoders * factor},
-            {"params": list(self.fields["geometry"].parameters()), "lr": m.lr_geometry * factor},
-            {"params": list(self.fields["appearance"].parameters()), "lr": m.lr_appearance * factor},
-        ]
+        return [{"params": dec, "lr": m.lr_decoders * factor},
+                *scaled_param_groups(self.fields["geometry"], m.lr_geometry * factor, scaling),
+                *scaled_param_groups(self.fields["appearance"], m.lr_appearance * factor, scaling)]
 
 
 def parameter_counts(model: SceneModel) -> dict[str, int]:

@@ -36,6 +36,7 @@ from tdfields.ops import interpolate
 from tdfields.report import FieldRow, Report, report
 from tdfields.resize import resize
 from tdfields.six_axis import SixAxis
+from tdfields.step_scale import scaled_param_groups, step_scales
 from tdfields.triplane import TriPlane
 from tdfields.vector_matrix import VectorMatrix
 
@@ -57,6 +58,8 @@ __all__ = [
     "KINDS",
     "build",
     "frozen",
+    "step_scales",
+    "scaled_param_groups",
     "config_from_dict",
     "load_config",
     "report",

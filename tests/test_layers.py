@@ -32,7 +32,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("tdfields: the Field base class", ("tdfields.field",)),
     ("tdfields: kinds, frozen",
      ("tdfields.dense_grid", "tdfields.triplane", "tdfields.vector_matrix", "tdfields.cp", "tdfields.six_axis",
-      "tdfields.frozen")),
+      "tdfields.frozen", "tdfields.step_scale")),
     ("tdfields: compositions", ("tdfields.multires", "tdfields.hybrid")),
     ("tdfields: configs and build", ("tdfields.config",)),
     ("tdfields: tools over built fields",

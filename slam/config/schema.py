@@ -169,6 +169,10 @@ class MappingConfig:
     lr_decoders: float = num(0.001, **POSITIVE)
     lr_geometry: float = num(0.005, **POSITIVE)
     lr_appearance: float = num(0.005, **POSITIVE)
+    # ours: "matched" scales each field factor's rate so one Adam step moves a product term's features as far as a
+    # plane's (tdfields.step_scale; planes and grids unchanged); "lift": only where that raises the rate; "none":
+    # ESLAM's rates as given
+    lr_scaling: str = choice("none", ("none", "matched", "lift"))
     window_size: int = num(20, **COUNT)
     keyframe_selection: str = choice("overlap", ("overlap", "global"))
     overlap_pixels: int = num(50, **COUNT)

@@ -5,6 +5,7 @@ import copy
 import pytest
 import torch
 
+import tdfields
 import slam.mapper as mapper
 from slam.config import load_config
 from slam.keyframes import KeyframeStore
@@ -88,3 +89,71 @@ def test_a_call_with_no_finite_step_reports_failure_and_changes_nothing(setup, m
     got, _, res = _map(cfg, s, frame, iters=3)
     assert not res.ok and res.skipped == 3
     _same(got, before)
+
+
+def _groups_seen(cfg, s, frame, monkeypatch, scaling, first=False):
+    seen = {}
+    real = mapper.adam
+
+    def spy(groups, **kw):
+        seen["groups"] = [(g["lr"], list(g["params"])) for g in groups]
+        return real(groups, **kw)
+
+    monkeypatch.setattr(mapper, "adam", spy)
+    c = copy.deepcopy(cfg)
+    c.mapping.lr_scaling = scaling
+    scene = copy.deepcopy(s.scene)
+    gen = torch.Generator().manual_seed(3)
+    keyframes = KeyframeStore([copy.deepcopy(kf) for kf in s.keyframes.frames])
+    mapper.map_frame(scene, 5, frame.color, frame.depth, s.state.est[-1], s.intr, keyframes, c, gen, first=first)
+    return scene, seen["groups"]
+
+
+def test_matched_rates_scale_each_factor_by_its_step_scale_and_nothing_else(setup, monkeypatch):
+    cfg, s, frame = setup
+    assert cfg.representation == "lrslam"
+    scene, groups = _groups_seen(cfg, s, frame, monkeypatch, "matched")
+    scales = {}
+    for name, value in tdfields.step_scales(s.scene.fields).items():  # the map as the call found it
+        scales[id(dict(scene.fields.named_parameters())[name])] = value
+    m = cfg.mapping
+    by_param = {id(p): lr for lr, ps in groups for p in ps}
+    geo = {id(p) for p in scene.fields["geometry"].parameters()}
+    for p in scene.fields.parameters():
+        base = m.lr_geometry if id(p) in geo else m.lr_appearance
+        assert by_param[id(p)] == pytest.approx(base * scales[id(p)], rel=1e-12)
+    for p in [*scene.sdf_decoder.parameters(), *scene.rgb_decoder.parameters(), scene.beta]:
+        assert by_param[id(p)] == m.lr_decoders
+    assert {id(p) for p in scene.parameters()} <= set(by_param)
+    # a small product (this map is 5 frames old): CP geometry is scaled up
+    assert min(by_param[i] for i in geo) > m.lr_geometry
+
+
+def test_matched_rates_leave_the_warm_up_at_the_configured_rates(setup, monkeypatch):
+    cfg, s, frame = setup
+    _, plain = _groups_seen(cfg, s, frame, monkeypatch, "none", first=True)
+    _, matched = _groups_seen(cfg, s, frame, monkeypatch, "matched", first=True)
+    assert [lr for lr, _ in plain] == [lr for lr, _ in matched]
+
+
+@pytest.fixture(scope="module")
+def eslam_setup(tiny_seq):
+    from slam.setup import load_data
+    from slam.system import SLAM
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.iters=3", "representation=eslam"])
+    s = SLAM(cfg, load_data(cfg))
+    for k in range(5):
+        s.step(k)
+    s.finish()
+    frame = s.frames.get(5)
+    s.close()
+    return cfg, s, frame
+
+
+def test_matched_rates_change_nothing_for_tri_planes(eslam_setup, monkeypatch):
+    """Single-factor terms have scale 1.0: ESLAM's mapping call is bit-identical either way."""
+    cfg, s, frame = eslam_setup
+    plain, _ = _groups_seen(cfg, s, frame, monkeypatch, "none")
+    matched, _ = _groups_seen(cfg, s, frame, monkeypatch, "matched")
+    _same(plain, matched)
