@@ -91,7 +91,7 @@ def test_a_call_with_no_finite_step_reports_failure_and_changes_nothing(setup, m
     _same(got, before)
 
 
-def _groups_seen(cfg, s, frame, monkeypatch, scaling, first=False):
+def _groups_seen(cfg, s, frame, monkeypatch, scaling, first=False, index=5, **mapping):
     seen = {}
     real = mapper.adam
 
@@ -102,10 +102,13 @@ def _groups_seen(cfg, s, frame, monkeypatch, scaling, first=False):
     monkeypatch.setattr(mapper, "adam", spy)
     c = copy.deepcopy(cfg)
     c.mapping.lr_scaling = scaling
+    for key, value in mapping.items():
+        setattr(c.mapping, key, value)
     scene = copy.deepcopy(s.scene)
     gen = torch.Generator().manual_seed(3)
     keyframes = KeyframeStore([copy.deepcopy(kf) for kf in s.keyframes.frames])
-    mapper.map_frame(scene, 5, frame.color, frame.depth, s.state.est[-1], s.intr, keyframes, c, gen, first=first)
+    mapper.map_frame(scene, index, frame.color, frame.depth, s.state.est[-1], s.intr, keyframes, c, gen,
+                     first=first)
     return scene, seen["groups"]
 
 
@@ -157,3 +160,4 @@ def test_matched_rates_change_nothing_for_tri_planes(eslam_setup, monkeypatch):
     plain, _ = _groups_seen(cfg, s, frame, monkeypatch, "none")
     matched, _ = _groups_seen(cfg, s, frame, monkeypatch, "matched")
     _same(plain, matched)
+
