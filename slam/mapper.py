@@ -106,7 +106,7 @@ def map_frame(
         free[1:] = True  # oldest selected frame is the gauge
         free &= torch.tensor([fid != 0 for fid in frame_ids])
     factor = mc.lr_first_factor if first else 1.0
-    # the warm-up starts from the random initialisation, where the matched scale is ~26x (CP): plain rates there
+    # the warm-up starts from the random initialisation, where the step scale is ~40x (CP): plain rates there
     groups = scene.param_groups(cfg, factor, "none" if first else mc.lr_scaling)
     cam = None
     if bool(free.any()):

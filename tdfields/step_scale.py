@@ -10,10 +10,11 @@ to hurt: the ``k * d`` contributions add up like a random walk, to a root-mean-s
     lr * sqrt(k * sum_i prod_{j != i} E[f_j^2])
 
 (``k``: rank, 1 for kinds without one). The scale is the inverse of that root, so one step of every kind moves
-each term's features by about ``lr``. Measured on LRSLAM's factors after mapping a TUM sequence: about 2.2 for
-rank-2 CP geometry (factors around 0.4: its products move at half a plane's speed) and about 0.6 for rank-16
-Six-axis appearance (1.7x a plane's speed). Single-factor terms (tri-plane, dense grid) get exactly ``1.0``:
-their learning rates are unchanged.
+each term's features by about ``lr``. Measured on LRSLAM's factors after mapping 125 TUM frames at plain rates:
+about 2.1 for rank-2 CP geometry (factors around 0.4: its products move at half a plane's speed) and about 0.6 for
+rank-16 Six-axis appearance (1.7x a plane's speed). At high rank some of the contributions stay coherent, so the
+estimate is approximate there (tests/tdfields/test_step_scale.py: within 0.9-1.25x of a plane at rank 2).
+Single-factor terms (tri-plane, dense grid) get exactly ``1.0``: their learning rates are unchanged.
 
 The scale depends on the factors' current size, so recompute it when they have changed (``slam`` does, once per
 mapping call). Near a small random initialisation it is large (CP at ``init_std`` 0.1: about 40x), which is why
