@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 
 import tdfields
-from tdfields.step_scale import MODES, step_scales
+from tdfields.step_scale import MODES, rate_scales
 
 RANKS = {"vector_matrix": 4, "cp": 8, "six_axis": 8}
 
@@ -47,10 +47,9 @@ def run(kind: str, checkpoints: list[int], seed: int = 0, scaling: str = "none",
     for target in sorted(checkpoints):
         while step < target:
             if scaling != "none" and step >= scale_from:
-                scales = step_scales(field)
+                scales = rate_scales(field, scaling)
                 for name, group in zip(names, groups):
-                    sc = scales.get(name, 1.0)
-                    group["lr"] = 0.02 * (max(sc, 1.0) if scaling == "lift" else sc)
+                    group["lr"] = 0.02 * scales[name]
             x = torch.rand(4096, 3, generator=g) * 2 - 1
             loss = (dec(field(x)).squeeze(-1) - sphere_sdf(x)).abs().mean()
             opt.zero_grad()

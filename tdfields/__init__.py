@@ -36,7 +36,7 @@ from tdfields.ops import interpolate
 from tdfields.report import FieldRow, Report, report
 from tdfields.resize import resize
 from tdfields.six_axis import SixAxis
-from tdfields.step_scale import scaled_param_groups, step_scales
+from tdfields.step_scale import rate_scales, scaled_param_groups, step_scales
 from tdfields.triplane import TriPlane
 from tdfields.vector_matrix import VectorMatrix
 
@@ -59,6 +59,7 @@ __all__ = [
     "build",
     "frozen",
     "step_scales",
+    "rate_scales",
     "scaled_param_groups",
     "config_from_dict",
     "load_config",

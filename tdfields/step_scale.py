@@ -30,11 +30,7 @@ from torch import nn
 
 from tdfields.field import Field
 
-__all__ = ["step_scales", "scaled_param_groups"]
-
-
-def _fields(module: nn.Module) -> list[tuple[str, Field]]:
-    return [(name, m) for name, m in module.named_modules() if isinstance(m, Field)]
+__all__ = ["MODES", "step_scales", "rate_scales", "scaled_param_groups"]
 
 
 @torch.no_grad()
@@ -48,14 +44,16 @@ def step_scales(module: nn.Module) -> dict[str, float]:
         ValueError: a factor holds a non-finite value, or a term's factors are all zero (no finite scale).
     """
     out: dict[str, float] = {}
-    for prefix, field in _fields(module):
+    for prefix, field in module.named_modules():
+        if not isinstance(field, Field):
+            continue
         k = field.rank if field.has_rank else 1
+        keys = {fname: f"{prefix}.factors.{fname}" if prefix else f"factors.{fname}" for fname in field.factors}
         mean_sq = {}
         for fname, p in field.factors.items():
             v = float(p.detach().pow(2).mean())
             if not math.isfinite(v):
-                raise ValueError(f"step_scales: factor {prefix + '.' if prefix else ''}factors.{fname} holds "
-                                 "non-finite values")
+                raise ValueError(f"step_scales: factor {keys[fname]} holds non-finite values")
             mean_sq[fname] = v
         for term in field.terms():
             if len(term) == 1:
@@ -68,31 +66,37 @@ def step_scales(module: nn.Module) -> dict[str, float]:
                                      "all zero; a product of zero factors has no gradient to scale")
                 scale = 1.0 / s
             for fname in term:
-                key = f"{prefix}.factors.{fname}" if prefix else f"factors.{fname}"
-                out[key] = min(out.get(key, scale), scale)
+                out[keys[fname]] = min(out.get(keys[fname], scale), scale)
     return out
 
 
-#: ``scaled_param_groups`` modes: plain rates, the matched scale, or the matched scale where it is above 1 only
+#: modes: plain rates, the matched scale, or the matched scale where it is above 1 only
 MODES = ("none", "matched", "lift")
 
 
-def scaled_param_groups(module: nn.Module, lr: float, mode: str = "matched") -> list[dict]:
-    """Optimizer parameter groups for ``module`` at base learning rate ``lr``: one group per distinct scale, in
-    parameter order; parameters that are not field factors (decoders) keep ``lr``.
+def rate_scales(module: nn.Module, mode: str = "matched") -> dict[str, float]:
+    """Parameter name -> learning-rate multiplier for every parameter of ``module`` under ``mode``.
 
-    ``mode``: ``"matched"``: ``lr * scale`` (:func:`step_scales`); ``"lift"``: ``lr * max(scale, 1)``, products
-    slower than a plane are brought up to a plane's speed and faster ones keep ``lr`` (for rates tuned on planes);
-    ``"none"``: one group at ``lr``.
+    ``"matched"``: the :func:`step_scales` scale; ``"lift"``: ``max(scale, 1)``, products slower than a plane are
+    brought up to a plane's speed and faster ones keep their rate (for rates tuned on planes); ``"none"``: 1.0.
+    Parameters that are not field factors (decoders) get 1.0.
     """
     if mode not in MODES:
-        raise ValueError(f"scaled_param_groups: mode must be one of {MODES}, got {mode!r}")
-    params = list(module.named_parameters())
-    if mode == "none":
-        return [{"params": [p for _, p in params], "lr": lr}] if params else []
-    scales = step_scales(module)
-    groups: dict[float, list[torch.Tensor]] = {}
-    for name, p in params:
+        raise ValueError(f"step_scale: mode must be one of {MODES}, got {mode!r}")
+    scales = step_scales(module) if mode != "none" else {}
+    out = {}
+    for name, _ in module.named_parameters():
         s = scales.get(name, 1.0)
-        groups.setdefault(max(s, 1.0) if mode == "lift" else s, []).append(p)
+        out[name] = max(s, 1.0) if mode == "lift" else s
+    return out
+
+
+def scaled_param_groups(module: nn.Module, lr: float, mode: str = "matched") -> list[dict]:
+    """Optimizer parameter groups for ``module`` at base learning rate ``lr``: ``lr`` times each parameter's
+    :func:`rate_scales` multiplier, one group per distinct multiplier, in parameter order (``"none"``: one group
+    at ``lr``)."""
+    scales = rate_scales(module, mode)
+    groups: dict[float, list[torch.Tensor]] = {}
+    for name, p in module.named_parameters():
+        groups.setdefault(scales[name], []).append(p)
     return [{"params": ps, "lr": lr * s} for s, ps in groups.items()]

@@ -160,4 +160,3 @@ def test_matched_rates_change_nothing_for_tri_planes(eslam_setup, monkeypatch):
     plain, _ = _groups_seen(cfg, s, frame, monkeypatch, "none")
     matched, _ = _groups_seen(cfg, s, frame, monkeypatch, "matched")
     _same(plain, matched)
-

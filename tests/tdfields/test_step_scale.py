@@ -13,12 +13,14 @@ from .conftest import make
 M = 0.3    # every factor entry is +-M below: the closed forms then hold exactly
 LR = 1e-3
 
+
 def _constant_magnitude(field, seed=0):
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for p in field.parameters():
             p.copy_(M * (torch.randint(0, 2, p.shape, generator=g) * 2 - 1).to(p.dtype))
     return field
+
 
 def test_single_factor_kinds_keep_their_rate_exactly():
     for kind in ("triplane", "dense_grid"):
@@ -28,6 +30,7 @@ def test_single_factor_kinds_keep_their_rate_exactly():
             groups = scaled_param_groups(f, 0.005, mode)
             assert len(groups) == 1 and groups[0]["lr"] == 0.005
             assert len(groups[0]["params"]) == len(list(f.parameters()))
+
 
 @pytest.mark.parametrize("kind,d", [("cp", 3), ("six_axis", 2), ("vector_matrix", 2)])
 def test_product_kinds_closed_form(kind, d):
@@ -83,6 +86,7 @@ def test_non_finite_factor_is_named():
         f.factors["y"][0, 0] = float("nan")
     with pytest.raises(ValueError, match="factors.y"):
         step_scales(f)
+
 
 def test_zero_product_is_an_error_not_an_infinite_rate():
     f = make("cp")
