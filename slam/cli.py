@@ -19,6 +19,7 @@ _COMMAND_MODULES = (
     "slam.commands.params",
     "slam.commands.mesh",
     "slam.commands.sweep",
+    "slam.commands.compare",
     "slam.data.cli",
     "slam.eval.cli",
 )
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  lrslam eval --trajectory runs/rpy/trajectory.txt --gt runs/rpy/trajectory_gt.txt\n"
             "  lrslam synth --out data/synth --frames 120\n"
             "  lrslam sweep --config synthetic --representation lrslam eslam --seeds 5 --out sweeps/synth\n"
+            "  lrslam compare sweeps/base sweeps/new                 # B - A per configuration, 95 % intervals\n"
         ),
     )
     parser.add_argument("--version", action="version", version=f"lrslam {__version__}")

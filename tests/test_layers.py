@@ -52,7 +52,8 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("slam: the loop", ("slam.observers", "slam.system")),
     ("slam: a run's outputs, checkpoints, a run to a folder", ("slam.outputs", "slam.checkpoint", "slam.runner")),
     ("slam: around whole runs (a viewer observer, sweeps of runs)",
-     ("slam.viewer", "slam.sweep.plan", "slam.sweep.summary", "slam.sweep.runs", "slam.sweep")),
+     ("slam.viewer", "slam.sweep.plan", "slam.sweep.summary", "slam.sweep.runs", "slam.sweep.compare",
+      "slam.sweep")),
     ("slam: commands", ("slam.commands", "slam.commands.*", "slam.data.cli", "slam.eval.cli", "slam.cli", "slam.__main__")),
 ]
 

@@ -1,0 +1,121 @@
+"""slam.sweep.compare and ``lrslam compare``: differences over seeds with their 95 % intervals."""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+from pathlib import Path
+
+import pytest
+from scipy import stats
+
+from slam.cli import main
+from slam.errors import SlamInputError
+from slam.sweep.compare import compare, compare_values, load_runs, seeds_needed
+
+RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+
+
+def _slam_compare(path: Path, rep_values: dict[str, dict[int, float]], data="/d/tum_fr1_rpy") -> Path:
+    runs = [{"sequence": "tum/fr1_rpy-cpu", "data": data, "representation": rep, "backend": "auto", "seed": s,
+             "repeat": 0, "ate_rmse_cm": v} for rep, vals in rep_values.items() for s, v in vals.items()]
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "slam_compare.json").write_text(json.dumps({"runs": runs, "summary": []}))
+    return path
+
+
+def test_paired_difference_is_the_mean_of_per_seed_differences_with_a_student_t_interval():
+    a = {0: 2.0, 1: 2.4, 2: 2.1, 3: 2.3}
+    b = {0: 2.1, 1: 2.6, 2: 2.2, 3: 2.6}
+    method, diff, hw, sd = compare_values(a, b)
+    d = [0.1, 0.2, 0.1, 0.3]
+    assert method == "paired"
+    assert diff == pytest.approx(0.175)
+    assert sd == pytest.approx(statistics.stdev(d))
+    assert hw == pytest.approx(3.182446 * statistics.stdev(d) / 2.0, rel=1e-5)  # t(0.975, 3) = 3.1824
+
+
+def test_welch_interval_matches_scipy_when_the_seeds_differ():
+    a = {0: 2.0, 1: 2.4, 2: 2.1}
+    b = {0: 2.9, 1: 2.5, 2: 3.1, 3: 2.7, 4: 2.8}
+    method, diff, hw, _ = compare_values(a, b)
+    assert method == "welch"
+    res = stats.ttest_ind(list(b.values()), list(a.values()), equal_var=False)
+    lo, hi = res.confidence_interval(0.95)
+    assert diff == pytest.approx((lo + hi) / 2)
+    assert hw == pytest.approx((hi - lo) / 2)
+
+
+def test_identical_runs_give_exactly_zero_and_a_resolved_constant_shift(tmp_path):
+    same = {"eslam": {0: 2.26, 1: 2.11, 2: 2.29}}
+    shift = {"eslam": {0: 2.36, 1: 2.21, 2: 2.39}}
+    a = _slam_compare(tmp_path / "a", same)
+    (d0,) = compare(a, _slam_compare(tmp_path / "b", same))
+    assert d0.diff == 0.0 and d0.half_width == 0.0 and d0.verdict == "unresolved" and d0.seeds_needed is None
+    (d1,) = compare(a, _slam_compare(tmp_path / "c", shift))
+    assert d1.diff == pytest.approx(0.1) and d1.half_width == pytest.approx(0.0, abs=1e-12)
+    assert d1.verdict == "B higher"
+
+
+def test_seeds_needed_is_the_first_n_whose_interval_excludes_zero():
+    n = seeds_needed(0.1, 0.2, paired=True)
+    assert stats.t.ppf(0.975, n - 1) * 0.2 / math.sqrt(n) < 0.1
+    assert stats.t.ppf(0.975, n - 2) * 0.2 / math.sqrt(n - 1) >= 0.1
+    assert seeds_needed(0.001, 0.3, paired=True) is None  # beyond 100
+    assert seeds_needed(0.1, 0.2, paired=False) > n  # unpaired: both sides' spread
+
+
+def test_the_published_3_seed_screen_and_its_5_seed_run_disagree_and_neither_is_resolved():
+    # the case that motivated the tool: O (3 seeds) looked better than M on the fast window, Q (5 seeds) worse
+    m = RESULTS / "accuracy" / "M_lr_scaling_lift"
+    o = RESULTS / "accuracy" / "O_track24_map9"
+    q = RESULTS / "accuracy" / "Q_track24_map9_5seeds"
+    fast = "tum/fr1_rpy-cpu (tum_fr1_rpy_0_124)"
+    (mo,) = [d for d in compare(m, o) if d.config == fast and d.representation == "lrslam"]
+    assert mo.method == "paired" and mo.diff < 0 and mo.verdict == "unresolved"
+    lift = RESULTS / "accuracy_lift"
+    (lq,) = [d for d in compare(lift, q) if d.config == fast and d.representation == "lrslam"]
+    assert lq.diff > 0 and lq.verdict == "unresolved" and len(lq.a) == len(lq.b) == 5
+    assert lq.diff == pytest.approx(statistics.fmean(lq.b) - statistics.fmean(lq.a))
+
+
+def test_reads_a_sweep_summary_in_metres_and_skips_failed_runs(tmp_path):
+    runs = [{"label": "synthetic", "preset": "synthetic", "representation": "lrslam", "seed": 0, "status": "ok",
+             "ate_rmse_m": 0.0045},
+            {"label": "synthetic", "preset": "synthetic", "representation": "lrslam", "seed": 1, "status": "failed",
+             "error": "boom"}]
+    (tmp_path / "summary.json").write_text(json.dumps({"engine": "serial", "runs": runs, "groups": []}))
+    assert load_runs(tmp_path) == {("synthetic", "lrslam", "auto"): {0: pytest.approx(0.45)}}
+
+
+@pytest.mark.parametrize("content, match", [
+    (None, "no such file"),
+    ("{not json", "not a readable JSON"),
+    ('{"summary": []}', "no 'runs' list"),
+    ('{"runs": [{"seed": 0}]}', "run 0 has no representation"),
+    ('{"runs": []}', "no finished run"),
+])
+def test_bad_result_files_name_the_file(tmp_path, content, match):
+    path = tmp_path / "slam_compare.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(SlamInputError, match=match) as err:
+        load_runs(path)
+    assert str(path) in str(err.value)
+
+
+def test_cli_prints_the_table_writes_json_and_exits_2_on_bad_input(tmp_path, capsys):
+    a = _slam_compare(tmp_path / "a", {"lrslam": {0: 2.0, 1: 2.2, 2: 2.1}})
+    b = _slam_compare(tmp_path / "b", {"lrslam": {0: 2.3, 1: 2.5, 2: 2.4}})
+    out = tmp_path / "d.json"
+    assert main(["compare", str(a), str(b), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "| tum/fr1_rpy-cpu (tum_fr1_rpy) | lrslam | 3 / 3 | 2.10 | 2.40 | +0.30 ± 0.00 | paired | B higher |" in text
+    rows = json.loads(out.read_text())["differences"]
+    assert rows[0]["diff"] == pytest.approx(0.3) and rows[0]["a"] == [2.0, 2.2, 2.1]
+    other = _slam_compare(tmp_path / "c", {"eslam": {0: 2.0}})
+    assert main(["compare", str(a), str(other)]) == 2
+    assert "no configuration in common" in capsys.readouterr().err
+    assert main(["compare", str(a), str(tmp_path / "missing")]) == 2
+    assert "no such file or folder" in capsys.readouterr().err
