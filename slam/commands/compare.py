@@ -18,17 +18,22 @@ def register(subparsers) -> None:
             "of A and B and B - A with its 95 % interval, paired by seed when both have the same seeds (Welch's "
             "otherwise). A difference whose interval contains 0 is 'unresolved', with the number of seeds a "
             "difference of that size would need. Use it before keeping a setting: a 3-seed screen can point "
-            "the other way from 5 seeds."
+            "the other way from 5 seeds. With --representations REF CAND it compares two representations on the "
+            "same configurations instead (B defaults to A): is CAND as accurate as REF at the same budget?"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "examples:\n"
             "  lrslam compare benchmarks/results/accuracy_lift benchmarks/results/accuracy/Q_track24_map9_5seeds\n"
             "  lrslam compare sweeps/base/summary.json sweeps/new/summary.json --json diff.json\n"
+            "  lrslam compare benchmarks/results/accuracy_final --representations eslam lrslam\n"
         ),
     )
     p.add_argument("a", metavar="A", help="the reference: a result file or its folder")
-    p.add_argument("b", metavar="B", help="the candidate: a result file or its folder")
+    p.add_argument("b", metavar="B", nargs="?", default=None,
+                   help="the candidate: a result file or its folder (default: A, with --representations)")
+    p.add_argument("--representations", nargs=2, default=None, metavar=("REF", "CAND"),
+                   help="compare representation CAND (in B) against REF (in A) on the same configurations")
     p.add_argument("--json", default=None, metavar="OUT", help="also write every difference as JSON to OUT")
     p.set_defaults(func=main)
 
@@ -36,11 +41,16 @@ def register(subparsers) -> None:
 def main(args) -> int:
     from slam.sweep.compare import compare, markdown
 
-    diffs = compare(args.a, args.b)
-    print(markdown(diffs, args.a, args.b), end="")
+    from slam.errors import SlamInputError
+
+    if args.b is None and args.representations is None:
+        raise SlamInputError("give B, or --representations REF CAND to compare two representations within A")
+    b = args.a if args.b is None else args.b
+    diffs = compare(args.a, b, tuple(args.representations) if args.representations else None)
+    print(markdown(diffs, args.a, b), end="")
     if args.json:
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
         rows = [dataclasses.asdict(d) | {"mean_a": d.mean_a, "mean_b": d.mean_b} for d in diffs]
-        out.write_text(json.dumps({"a": str(args.a), "b": str(args.b), "unit": "cm", "differences": rows}, indent=2))
+        out.write_text(json.dumps({"a": str(args.a), "b": str(b), "unit": "cm", "differences": rows}, indent=2))
     return 0

@@ -148,28 +148,41 @@ def seeds_needed(diff: float, sd: float | None, paired: bool, limit: int = 100) 
     return None
 
 
-def compare(a_path: str | Path, b_path: str | Path) -> list[Difference]:
+def compare(a_path: str | Path, b_path: str | Path | None = None,
+            representations: tuple[str, str] | None = None) -> list[Difference]:
     """B - A for every configuration present in both result files, in A's order.
+
+    Args:
+        a_path, b_path: result files or folders; ``b_path`` defaults to ``a_path`` (with ``representations``).
+        representations: ``(ref, cand)``: compare representation ``cand`` in B against ``ref`` in A on the same
+            configuration (e.g. ``("eslam", "lrslam")``: is the low-rank scene as accurate as tri-planes at the
+            same budget?). ``Difference.representation`` then reads ``"cand - ref"``.
 
     Raises:
         SlamInputError: a file that :func:`load_runs` refuses, or no configuration in common.
     """
+    b_path = a_path if b_path is None else b_path
     a, b = load_runs(a_path), load_runs(b_path)
-    common = [k for k in a if k in b]
-    if not common:
-        raise SlamInputError(f"{a_path} and {b_path} have no configuration in common; A has "
+    if representations is None:
+        pairs = [(k, k, k[1]) for k in a if k in b]
+    else:
+        ref, cand = representations
+        pairs = [(k, (k[0], cand, k[2]), f"{cand} - {ref}") for k in a if k[1] == ref and (k[0], cand, k[2]) in b]
+    if not pairs:
+        what = "" if representations is None else f" for {representations[1]} against {representations[0]}"
+        raise SlamInputError(f"{a_path} and {b_path} have no configuration in common{what}; A has "
                              f"{sorted(set(a))}, B has {sorted(set(b))}")
     out = []
-    for key in common:
-        method, diff, hw, sd = compare_values(a[key], b[key])
+    for ka, kb, label in pairs:
+        method, diff, hw, sd = compare_values(a[ka], b[kb])
         if hw is None:
             verdict, needed = "unresolved (one run a side)", None
         elif abs(diff) > hw:
             verdict, needed = ("B lower" if diff < 0 else "B higher"), None
         else:
             verdict, needed = "unresolved", seeds_needed(diff, sd, paired=method == "paired")
-        out.append(Difference(key[0], key[1], key[2], method, [a[key][s] for s in sorted(a[key])],
-                              [b[key][s] for s in sorted(b[key])], diff, hw, verdict, needed))
+        out.append(Difference(ka[0], label, ka[2], method, [a[ka][s] for s in sorted(a[ka])],
+                              [b[kb][s] for s in sorted(b[kb])], diff, hw, verdict, needed))
     return out
 
 

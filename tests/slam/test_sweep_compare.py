@@ -119,3 +119,25 @@ def test_cli_prints_the_table_writes_json_and_exits_2_on_bad_input(tmp_path, cap
     assert "no configuration in common" in capsys.readouterr().err
     assert main(["compare", str(a), str(tmp_path / "missing")]) == 2
     assert "no such file or folder" in capsys.readouterr().err
+
+
+def test_representations_compares_the_candidate_against_the_reference_on_the_same_configurations(tmp_path, capsys):
+    a = _slam_compare(tmp_path / "a", {"eslam": {0: 2.2, 1: 2.4, 2: 2.3}, "lrslam": {0: 2.0, 1: 2.3, 2: 2.1}})
+    (d,) = compare(a, representations=("eslam", "lrslam"))
+    assert d.representation == "lrslam - eslam" and d.method == "paired"
+    assert d.diff == pytest.approx(statistics.fmean([-0.2, -0.1, -0.2]))
+    assert main(["compare", str(a), "--representations", "eslam", "lrslam"]) == 0
+    assert "| lrslam - eslam | 3 / 3 | 2.30 | 2.13 |" in capsys.readouterr().out
+    assert main(["compare", str(a), "--representations", "eslam", "cp_cp"]) == 2
+    assert "for cp_cp against eslam" in capsys.readouterr().err
+    assert main(["compare", str(a)]) == 2
+    assert "give B, or --representations" in capsys.readouterr().err
+
+
+def test_issue_9_fast_window_gap_between_lrslam_and_eslam_is_inside_the_seeds_spread():
+    # the published e413641 lrslam runs against eslam's (valid for e413641: tri-planes have step scale 1.0)
+    fast = "tum/fr1_rpy-cpu (tum_fr1_rpy_0_124)"
+    diffs = {d.config: d for d in compare(RESULTS / "accuracy_final", RESULTS / "accuracy_lift", ("eslam", "lrslam"))}
+    assert diffs[fast].verdict == "unresolved" and 0 < diffs[fast].diff < diffs[fast].half_width
+    before = {d.config: d for d in compare(RESULTS / "accuracy_final", representations=("eslam", "lrslam"))}
+    assert before[fast].verdict == "B higher"  # e2051a7: lrslam 0.6 cm behind, resolved
