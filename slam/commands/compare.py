@@ -7,6 +7,8 @@ import dataclasses
 import json
 from pathlib import Path
 
+from slam.errors import SlamInputError
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -40,8 +42,6 @@ def register(subparsers) -> None:
 
 def main(args) -> int:
     from slam.sweep.compare import compare, markdown
-
-    from slam.errors import SlamInputError
 
     if args.b is None and args.representations is None:
         raise SlamInputError("give B, or --representations REF CAND to compare two representations within A")
