@@ -13,7 +13,8 @@ folder name, representation, backend) and compared on ATE RMSE in cm:
 * otherwise **Welch**'s: ``mean(B) - mean(A)`` ± ``t * sqrt(s_A^2 / n_A + s_B^2 / n_B)`` with Welch-Satterthwaite
   degrees of freedom;
 
-``t`` is Student's two-sided 95 % quantile. The verdict is ``B lower`` / ``B higher`` when the interval excludes 0,
+``t`` is Student's two-sided 95 % quantile. The table also counts the seeds on which B is lower: one diverged seed
+widens the interval of a difference that every seed shows. The verdict is ``B lower`` / ``B higher`` when the interval excludes 0,
 else ``unresolved``, with the seeds per side a difference of that size would need if the spread stays as measured
 (the smallest ``n`` with ``t(n - 1) * sd / sqrt(n) < |d|``, ``sd`` of the paired differences or, unpaired,
 ``sqrt(2)`` times the pooled per-run spread; ``None`` beyond 100).
@@ -193,11 +194,14 @@ def markdown(diffs: list[Difference], a_label: str, b_label: str) -> str:
              "|---|---|---|---|---|---|---|---|"]
     for d in diffs:
         ci = "" if d.half_width is None else f" ± {d.half_width:.2f}"
+        method = d.method
+        if d.method == "paired":  # a heavy tail (one diverged seed) widens the interval; the count shows it
+            method += f", B lower on {sum(b < a for a, b in zip(d.a, d.b))} of {len(d.a)}"
         verdict = d.verdict
         if d.verdict == "unresolved":
             verdict += (f" (~{d.seeds_needed} seeds would resolve a difference this size)" if d.seeds_needed
                         else " (more than 100 seeds for a difference this size)")
         rep = d.representation + ("" if d.backend == "auto" else f" ({d.backend})")
         lines.append(f"| {d.config} | {rep} | {len(d.a)} / {len(d.b)} | {d.mean_a:.2f} | {d.mean_b:.2f} | "
-                     f"{d.diff:+.2f}{ci} | {d.method} | {verdict} |")
+                     f"{d.diff:+.2f}{ci} | {method} | {verdict} |")
     return "\n".join(lines) + "\n"

@@ -111,7 +111,7 @@ def test_cli_prints_the_table_writes_json_and_exits_2_on_bad_input(tmp_path, cap
     out = tmp_path / "d.json"
     assert main(["compare", str(a), str(b), "--json", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "| tum/fr1_rpy-cpu (tum_fr1_rpy) | lrslam | 3 / 3 | 2.10 | 2.40 | +0.30 ± 0.00 | paired | B higher |" in text
+    assert "| tum/fr1_rpy-cpu (tum_fr1_rpy) | lrslam | 3 / 3 | 2.10 | 2.40 | +0.30 ± 0.00 | paired, B lower on 0 of 3 | B higher |" in text
     rows = json.loads(out.read_text())["differences"]
     assert rows[0]["diff"] == pytest.approx(0.3) and rows[0]["a"] == [2.0, 2.2, 2.1]
     other = _slam_compare(tmp_path / "c", {"eslam": {0: 2.0}})
@@ -127,7 +127,8 @@ def test_representations_compares_the_candidate_against_the_reference_on_the_sam
     assert d.representation == "lrslam - eslam" and d.method == "paired"
     assert d.diff == pytest.approx(statistics.fmean([-0.2, -0.1, -0.2]))
     assert main(["compare", str(a), "--representations", "eslam", "lrslam"]) == 0
-    assert "| lrslam - eslam | 3 / 3 | 2.30 | 2.13 |" in capsys.readouterr().out
+    assert "| lrslam - eslam | 3 / 3 | 2.30 | 2.13 | -0.17 ± 0.14 | paired, B lower on 3 of 3 | B lower |" in \
+        capsys.readouterr().out
     assert main(["compare", str(a), "--representations", "eslam", "cp_cp"]) == 2
     assert "for cp_cp against eslam" in capsys.readouterr().err
     assert main(["compare", str(a)]) == 2
