@@ -13,11 +13,11 @@ folder name, representation, backend) and compared on ATE RMSE in cm:
 * otherwise **Welch**'s: ``mean(B) - mean(A)`` ± ``t * sqrt(s_A^2 / n_A + s_B^2 / n_B)`` with Welch-Satterthwaite
   degrees of freedom;
 
-``t`` is Student's two-sided 95 % quantile. The table also counts the seeds on which B is lower: one diverged seed
-widens the interval of a difference that every seed shows. The verdict is ``B lower`` / ``B higher`` when the interval excludes 0,
+``t`` is Student's two-sided 95 % quantile. The verdict is ``B lower`` / ``B higher`` when the interval excludes 0,
 else ``unresolved``, with the seeds per side a difference of that size would need if the spread stays as measured
 (the smallest ``n`` with ``t(n - 1) * sd / sqrt(n) < |d|``, ``sd`` of the paired differences or, unpaired,
-``sqrt(2)`` times the pooled per-run spread; ``None`` beyond 100).
+``sqrt(2)`` times the pooled per-run spread; ``None`` beyond 100). The table also counts the seeds on which B is
+lower: one diverged seed widens the interval of a difference that every seed shows.
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ def _t95(df: float) -> float:
 @dataclass
 class Difference:
     """B minus A for one configuration (ATE RMSE, cm); ``half_width`` is the 95 % interval's half width
-    (``None`` with fewer than two runs a side), ``seeds_needed`` the normal-approximation estimate (``None`` when
+    (``None`` with fewer than two runs a side), ``seeds_needed`` what :func:`seeds_needed` estimates (``None`` when
     resolved or not estimable)."""
 
     config: str
