@@ -91,6 +91,24 @@ def test_deterministic_for_a_seed(tiny_seq):
     assert torch.equal(torch.stack(a.state.est), torch.stack(b.state.est))
 
 
+@pytest.mark.parametrize("representation", ["lrslam", "eslam"])
+def test_fused_kernels_follow_the_reference_path_through_a_run(tiny_seq, representation):
+    # the fused kernels' shortcuts (merged rank loops, points with zero gradient skipped) checked where they run:
+    # parallel tracking and mapping with fused Adam, BA and the frozen-field caches, against the pure-torch path
+    from tdfields import kernels
+
+    runs = {}
+    for backend in ("torch", "numba"):
+        with kernels.use_backend(backend):
+            s = _system(tiny_seq, [f"representation={representation}", "parallel=true", "data.max_frames=5"])
+            s.run(progress=False)
+            runs[backend] = (torch.stack(s.state.est), s.scene.state_dict())
+    (ref_poses, ref_map), (poses, fused_map) = runs["torch"], runs["numba"]
+    torch.testing.assert_close(poses, ref_poses, rtol=0, atol=1e-4)
+    for name, t in ref_map.items():
+        torch.testing.assert_close(fused_map[name], t, rtol=1e-3, atol=1e-4, msg=name)
+
+
 def test_cuda_request_without_gpu_is_a_user_error():
     from slam.setup import resolve_device
 

@@ -59,6 +59,29 @@ def test_whole_fields_match_between_backends(kind):
         torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.parametrize("kind", sorted(tdfields.KINDS))
+def test_points_with_zero_output_gradient_are_skipped_exactly(kind):
+    # rendering gives exact zeros to samples behind the surface; the kernel skips those points, which must change
+    # no factor gradient and leave their coordinate gradient exactly 0
+    torch.manual_seed(1)
+    spec = {"kind": kind, "aabb": [[0, 1], [0, 2], [0, 1]], "cell_size": 0.1, "channels": 8}
+    if tdfields.KINDS[kind].has_rank:
+        spec["rank"] = 3
+    f = tdfields.build(spec)
+    x = (torch.rand(1500, 3) * torch.tensor([1.0, 2.0, 1.0])).requires_grad_(True)
+    dead = torch.rand(1500) < 0.4
+    dead[0] = dead[-1] = True
+    out = {}
+    for backend in ("torch", "numba"):
+        with kernels.use_backend(backend):
+            y = f(x)
+            g = torch.randn(y.shape, generator=torch.Generator().manual_seed(2)) * (~dead)[:, None]
+            out[backend] = torch.autograd.grad(y, [x, *f.parameters()], g)
+    assert bool((out["numba"][0][dead] == 0).all())
+    for a, b in zip(out["torch"], out["numba"]):
+        torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
+
+
 def test_second_derivative_raises_instead_of_silent_zero():
     f = tdfields.CP([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2)
     x = torch.rand(10, 3, requires_grad=True)
