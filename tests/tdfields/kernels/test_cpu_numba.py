@@ -61,8 +61,8 @@ def test_whole_fields_match_between_backends(kind):
 
 @pytest.mark.parametrize("kind", sorted(tdfields.KINDS))
 def test_points_with_zero_output_gradient_are_skipped_exactly(kind):
-    # rendering gives exact zeros to samples behind the surface; the kernel skips those points, which must change
-    # no factor gradient and leave their coordinate gradient exactly 0
+    # SLAM mapping gives a quarter of its points exactly zero feature gradients (rays without depth, dead ReLU
+    # layers); the kernel skips them, which must change no factor gradient and leave their coordinate gradient 0
     torch.manual_seed(1)
     spec = {"kind": kind, "aabb": [[0, 1], [0, 2], [0, 1]], "cell_size": 0.1, "channels": 8}
     if tdfields.KINDS[kind].has_rank:
