@@ -13,8 +13,8 @@ folder name, representation, backend) and compared on ATE RMSE in cm:
 * otherwise **Welch**'s: ``mean(B) - mean(A)`` ± ``t * sqrt(s_A^2 / n_A + s_B^2 / n_B)`` with Welch-Satterthwaite
   degrees of freedom;
 
-``t`` is Student's two-sided 95 % quantile. The verdict is ``B lower`` / ``B higher`` when the interval excludes 0,
-else ``unresolved``, with the seeds per side a difference of that size would need if the spread stays as measured
+``t`` is Student's two-sided 95 % quantile. The verdict is ``identical`` when every paired seed is equal, ``B lower``
+/ ``B higher`` when the interval excludes 0, else ``unresolved``, with the seeds per side a difference of that size would need if the spread stays as measured
 (the smallest ``n`` with ``t(n - 1) * sd / sqrt(n) < |d|``, ``sd`` of the paired differences or, unpaired,
 ``sqrt(2)`` times the pooled per-run spread; ``None`` beyond 100). The table also counts the seeds on which B is
 lower: one diverged seed widens the interval of a difference that every seed shows.
@@ -176,7 +176,9 @@ def compare(a_path: str | Path, b_path: str | Path | None = None,
     out = []
     for ka, kb, label in pairs:
         method, diff, hw, sd = compare_values(a[ka], b[kb])
-        if hw is None:
+        if method == "paired" and all(a[ka][k] == b[kb][k] for k in a[ka]):
+            verdict, needed = "identical", None  # every seed equal: the same runs, not an unresolved difference
+        elif hw is None:
             verdict, needed = "unresolved (one run a side)", None
         elif abs(diff) > hw:
             verdict, needed = ("B lower" if diff < 0 else "B higher"), None

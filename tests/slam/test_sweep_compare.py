@@ -52,7 +52,7 @@ def test_identical_runs_give_exactly_zero_and_a_resolved_constant_shift(tmp_path
     shift = {"eslam": {0: 2.36, 1: 2.21, 2: 2.39}}
     a = _slam_compare(tmp_path / "a", same)
     (d0,) = compare(a, _slam_compare(tmp_path / "b", same))
-    assert d0.diff == 0.0 and d0.half_width == 0.0 and d0.verdict == "unresolved" and d0.seeds_needed is None
+    assert d0.diff == 0.0 and d0.half_width == 0.0 and d0.verdict == "identical" and d0.seeds_needed is None
     (d1,) = compare(a, _slam_compare(tmp_path / "c", shift))
     assert d1.diff == pytest.approx(0.1) and d1.half_width == pytest.approx(0.0, abs=1e-12)
     assert d1.verdict == "B higher"
