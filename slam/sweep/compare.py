@@ -13,11 +13,12 @@ folder name, representation, backend) and compared on ATE RMSE in cm:
 * otherwise **Welch**'s: ``mean(B) - mean(A)`` ± ``t * sqrt(s_A^2 / n_A + s_B^2 / n_B)`` with Welch-Satterthwaite
   degrees of freedom;
 
-``t`` is Student's two-sided 95 % quantile. The verdict is ``identical`` when every paired seed is equal, ``B lower``
-/ ``B higher`` when the interval excludes 0, else ``unresolved``, with the seeds per side a difference of that size would need if the spread stays as measured
-(the smallest ``n`` with ``t(n - 1) * sd / sqrt(n) < |d|``, ``sd`` of the paired differences or, unpaired,
-``sqrt(2)`` times the pooled per-run spread; ``None`` beyond 100). The table also counts the seeds on which B is
-lower: one diverged seed widens the interval of a difference that every seed shows.
+``t`` is Student's two-sided 95 % quantile. The verdict is ``identical`` when every paired seed is equal,
+``B lower`` / ``B higher`` when the interval excludes 0, else ``unresolved``, with the seeds per side a difference
+of that size would need if the spread stays as measured (the smallest ``n`` with ``t(n - 1) * sd / sqrt(n) < |d|``,
+``sd`` of the paired differences or, unpaired, ``sqrt(2)`` times the pooled per-run spread; ``None`` beyond 100).
+The table also counts the seeds on which B is lower: one diverged seed widens the interval of a difference that
+every seed shows.
 """
 
 from __future__ import annotations

@@ -100,7 +100,9 @@ def test_fused_kernels_follow_the_reference_path_through_a_run(tiny_seq, represe
     runs = {}
     for backend in ("torch", "numba"):
         with kernels.use_backend(backend):
-            s = _system(tiny_seq, [f"representation={representation}", "parallel=true", "data.max_frames=5"])
+            # every frame mapped and a keyframe, BA from the second keyframe on: the TUM preset's schedule
+            s = _system(tiny_seq, [f"representation={representation}", "parallel=true", "data.max_frames=5",
+                                   "mapping.every_frame=1", "mapping.keyframe_every=1", "mapping.ba_min_keyframes=1"])
             s.run(progress=False)
             runs[backend] = (torch.stack(s.state.est), s.scene.state_dict())
     (ref_poses, ref_map), (poses, fused_map) = runs["torch"], runs["numba"]
