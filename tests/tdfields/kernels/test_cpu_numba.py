@@ -40,13 +40,18 @@ def test_large_grid_uses_single_buffer_and_stays_exact(monkeypatch):
     torch.testing.assert_close(gb, ga)
 
 
+def _small_field(kind: str, rank: int):
+    """A 1 x 2 x 1 m field of ``kind`` at 0.1 m with 8 channels (``rank`` where the kind has one)."""
+    spec = {"kind": kind, "aabb": [[0, 1], [0, 2], [0, 1]], "cell_size": 0.1, "channels": 8}
+    if tdfields.KINDS[kind].has_rank:
+        spec["rank"] = rank
+    return tdfields.build(spec)
+
+
 @pytest.mark.parametrize("kind", sorted(tdfields.KINDS))
 def test_whole_fields_match_between_backends(kind):
     torch.manual_seed(0)
-    spec = {"kind": kind, "aabb": [[0, 1], [0, 2], [0, 1]], "cell_size": 0.1, "channels": 8}
-    if tdfields.KINDS[kind].has_rank:
-        spec["rank"] = 4
-    f = tdfields.build(spec)
+    f = _small_field(kind, rank=4)
     x = (torch.rand(2000, 3) * torch.tensor([1.2, 2.4, 1.2]) - 0.1).requires_grad_(True)
     out = {}
     for backend in ("torch", "numba"):
@@ -64,10 +69,7 @@ def test_points_with_zero_output_gradient_are_skipped_exactly(kind):
     # SLAM mapping gives a quarter of its points exactly zero feature gradients (rays without depth, dead ReLU
     # layers); the kernel skips them, which must change no factor gradient and leave their coordinate gradient 0
     torch.manual_seed(1)
-    spec = {"kind": kind, "aabb": [[0, 1], [0, 2], [0, 1]], "cell_size": 0.1, "channels": 8}
-    if tdfields.KINDS[kind].has_rank:
-        spec["rank"] = 3
-    f = tdfields.build(spec)
+    f = _small_field(kind, rank=3)
     x = (torch.rand(1500, 3) * torch.tensor([1.0, 2.0, 1.0])).requires_grad_(True)
     dead = torch.rand(1500) < 0.4
     dead[0] = dead[-1] = True
