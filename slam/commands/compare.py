@@ -19,7 +19,7 @@ def register(subparsers) -> None:
             "sweep's summary.json, or the folders holding them) configuration by configuration: mean ATE RMSE "
             "of A and B and B - A with its 95 % interval, paired by seed when both have the same seeds (Welch's "
             "otherwise). A difference whose interval contains 0 is 'unresolved', with the number of seeds a "
-            "difference of that size would need. Use it before keeping a setting: a 3-seed screen can point "
+            "difference of that size would need; paired runs equal on every seed are 'identical'. Use it before keeping a setting: a 3-seed screen can point "
             "the other way from 5 seeds. With --representations REF CAND it compares two representations on the "
             "same configurations instead (B defaults to A): is CAND as accurate as REF at the same budget?"
         ),
