@@ -16,6 +16,7 @@ from slam.errors import SlamInputError
 # module path -> it defines register(subparsers); the order is the order in --help
 _COMMAND_MODULES = (
     "slam.commands.run",
+    "slam.commands.download",
     "slam.commands.params",
     "slam.commands.mesh",
     "slam.commands.sweep",
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "examples:\n"
+            "  lrslam download tum fr1_rpy --to data/      # fetch a dataset, print the run command for it\n"
             "  lrslam run                                  # bundled synthetic sequence, CPU\n"
             "  lrslam run --config tum/fr1_rpy-cpu --data ../shared/data/tum_fr1_rpy --out runs/rpy\n"
             "  lrslam params --config replica/room0 representation=eslam\n"
