@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import re
 from pathlib import Path
 from typing import Any, Union, get_args, get_origin, get_type_hints
@@ -128,7 +129,9 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
             raise SlamInputError(f"config key '{key}' must be true or false, got {value!r}")
         return value
     if tp is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value:
+        # int(.inf) raises OverflowError and int(.nan) ValueError: refuse them here, with the key's name
+        if (isinstance(value, bool) or not isinstance(value, (int, float))
+                or isinstance(value, float) and (not math.isfinite(value) or int(value) != value)):
             raise SlamInputError(f"config key '{key}' must be an integer, got {value!r}")
         return int(value)
     if tp is float:
@@ -258,6 +261,11 @@ def _validate(cfg: Config) -> None:
             allowed = "'auto' or " if key == "bound" else "null or "
             raise SlamInputError(f"config key 'scene.{key}' must be {allowed}[[x0,x1],[y0,y1],[z0,z1]] with "
                                  f"x0 < x1 (metres), got {b!r}")
+    if cfg.mapping.max_keyframes in (1, 2):
+        # the store keeps the first keyframe and the last two (the window always has them): fewer than 3 would
+        # have to drop one of those
+        raise SlamInputError(f"config key 'mapping.max_keyframes' = {cfg.mapping.max_keyframes} is out of range: "
+                             "must be 0 (keep every keyframe) or >= 3 (the first and the last two are always kept)")
     if len(cfg.tracking.ignore_edge) != 2:
         raise SlamInputError(f"config key 'tracking.ignore_edge' must be [rows, columns], got {cfg.tracking.ignore_edge!r}")
 

@@ -8,6 +8,7 @@ enumerated one; :mod:`slam.config.load` checks every value against them as a con
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -29,7 +30,7 @@ class Range:
     hi_open: bool = False
 
     def ok(self, v: float) -> bool:
-        if v != v:  # NaN
+        if not math.isfinite(v):  # NaN, and infinities: no key means "unbounded" by .inf
             return False
         if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
             return False
@@ -38,11 +39,14 @@ class Range:
         return True
 
     def __str__(self) -> str:
+        def fmt(v: float) -> str:
+            return str(int(v)) if float(v).is_integer() and abs(v) < 1e16 else f"{v:g}"
+
         parts = []
         if self.lo is not None:
-            parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
+            parts.append(f"{'>' if self.lo_open else '>='} {fmt(self.lo)}")
         if self.hi is not None:
-            parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
+            parts.append(f"{'<' if self.hi_open else '<='} {fmt(self.hi)}")
         return " and ".join(parts) or "any number"
 
 
@@ -59,10 +63,15 @@ def choice(default, options: tuple, **kw):
     return field(default=default, metadata={"choices": tuple(options)}, **kw)
 
 
-COUNT = {"lo": 1}          # iteration and pixel counts, sizes
-POSITIVE = {"lo": 0, "lo_open": True}   # lengths, learning rates, scales
-NONNEG = {"lo": 0}         # weights, margins
+# every numeric key has a finite upper bound too: a value no run could use (1e30 pixels, a 1e9-iteration call) is
+# refused when the config is read instead of failing an allocation mid-run; the bounds are far above any preset
+BIG = 10_000_000
+COUNT = {"lo": 1, "hi": BIG}          # iteration and pixel counts, sizes
+POSITIVE = {"lo": 0, "lo_open": True, "hi": 1e6}   # lengths, scales
+RATE = {"lo": 0, "lo_open": True, "hi": 10.0}      # learning rates
+NONNEG = {"lo": 0, "hi": BIG}         # weights, margins, counts that may be 0
 FRACTION = {"lo": 0, "hi": 1}
+METRES = {"lo": 0, "lo_open": True, "hi": 1000.0}  # lengths in metres
 
 
 @dataclass
@@ -78,7 +87,7 @@ class DataConfig:
     max_frames: Optional[int] = num(None, **COUNT)
     stride: int = num(1, **COUNT)
     max_bad_fraction: float = num(0.1, **FRACTION)
-    prefetch: int = num(2, **NONNEG)  # frames read ahead on a background thread (0: on demand)
+    prefetch: int = num(2, lo=0, hi=64)  # frames read ahead on a background thread (0: on demand)
     options: dict = field(default_factory=dict)
 
 
@@ -88,9 +97,9 @@ class FieldSpec:
     ``rank`` (cp / six_axis / vector_matrix), ``channels`` per level, ``init_std``."""
 
     kind: str = choice("cp", FIELD_KINDS)
-    cell_sizes: list = num(lambda: [0.24, 0.06], **POSITIVE)
-    rank: int = num(2, **COUNT)
-    channels: int = num(32, **COUNT)
+    cell_sizes: list = num(lambda: [0.24, 0.06], **METRES)
+    rank: int = num(2, lo=1, hi=4096)
+    channels: int = num(32, lo=1, hi=4096)
     init_std: Optional[float] = num(None, **POSITIVE)  # null: the kind's tdfields default
 
 
@@ -101,14 +110,14 @@ class SceneConfig:
 
     bound: Any = "auto"
     marching_cubes_bound: Any = None
-    bound_dividable: float = num(0.24, **POSITIVE)
+    bound_dividable: float = num(0.24, **METRES)
     bound_auto_frames: int = num(10, **COUNT)
-    bound_auto_margin: float = num(1.0, **NONNEG)
+    bound_auto_margin: float = num(1.0, lo=0, hi=1000.0)
     bound_auto_percentile: float = num(99.0, lo=0, hi=100, lo_open=True)
-    truncation: float = num(0.06, **POSITIVE)
+    truncation: float = num(0.06, **METRES)
     learnable_beta: bool = True
     beta_init: float = num(10.0, **POSITIVE)
-    decoder_hidden: int = num(16, **COUNT)
+    decoder_hidden: int = num(16, lo=1, hi=4096)
 
 
 def _weights(fs, center, tail, depth, color):
@@ -126,8 +135,8 @@ class RenderingConfig:
     ``color_cutoff``: samples whose compositing weight is at most this skip the colour query (0: every sample,
     as ESLAM)."""
 
-    n_stratified: int = num(32, lo=2)
-    n_importance: int = num(8, **NONNEG)
+    n_stratified: int = num(32, lo=2, hi=4096)
+    n_importance: int = num(8, lo=0, hi=4096)
     perturb: bool = True
     color_cutoff: float = num(0.0, lo=0, hi=1, hi_open=True)
 
@@ -135,9 +144,9 @@ class RenderingConfig:
 @dataclass
 class TrackingConfig:
     iters: int = num(8, **COUNT)
-    pixels: int = num(2000, lo=10)
-    lr_t: float = num(0.001, **POSITIVE)
-    lr_r: float = num(0.001, **POSITIVE)
+    pixels: int = num(2000, lo=10, hi=BIG)
+    lr_t: float = num(0.001, **RATE)
+    lr_r: float = num(0.001, **RATE)
     ignore_edge: list = num(lambda: [75, 75], **NONNEG)
     # the starting pose: ESLAM's constant velocity (const_speed), the previous pose, or depth ICP from the
     # previous frame started at the constant-velocity guess (ours; slam/odometry.py)
@@ -152,9 +161,14 @@ class TrackingConfig:
     # max_angular_speed (deg/s); then `recovery` tracks again from several starts. 0 turns a check off.
     lost_loss_factor: float = num(4.0, **NONNEG)
     lost_min_inliers: float = num(0.5, **FRACTION)
-    max_speed: float = num(3.0, **NONNEG)
-    max_angular_speed: float = num(360.0, **NONNEG)
+    max_speed: float = num(3.0, lo=0, hi=1000.0)
+    max_angular_speed: float = num(360.0, lo=0, hi=100000.0)
     recovery: bool = True
+    # ours (slam/recovery.py): after this many frames in a row without a trusted pose (lost, unreadable or
+    # without depth), relocalise against the relocalize_keyframes keyframes nearest the last trusted pose
+    # (0: never)
+    relocalize_after: int = num(5, lo=0, hi=BIG)
+    relocalize_keyframes: int = num(3, lo=1, hi=100)
     weights: LossWeights = field(default_factory=TRACKING_WEIGHTS)
 
 
@@ -166,9 +180,9 @@ class MappingConfig:
     iters_first: int = num(1000, **COUNT)
     lr_first_factor: float = num(5.0, **POSITIVE)
     pixels: int = num(4000, **COUNT)
-    lr_decoders: float = num(0.001, **POSITIVE)
-    lr_geometry: float = num(0.005, **POSITIVE)
-    lr_appearance: float = num(0.005, **POSITIVE)
+    lr_decoders: float = num(0.001, **RATE)
+    lr_geometry: float = num(0.005, **RATE)
+    lr_appearance: float = num(0.005, **RATE)
     # ours: "matched" scales each field factor's rate so one Adam step moves a product term's features as far as a
     # plane's (tdfields.step_scale; planes and grids unchanged); "lift": only where that raises the rate; "none":
     # ESLAM's rates as given
@@ -176,9 +190,9 @@ class MappingConfig:
     window_size: int = num(20, **COUNT)
     keyframe_selection: str = choice("overlap", ("overlap", "global"))
     overlap_pixels: int = num(50, **COUNT)
-    overlap_samples: int = num(8, lo=2)
+    overlap_samples: int = num(8, lo=2, hi=4096)
     joint_opt: bool = True
-    joint_opt_cam_lr: float = num(0.001, **POSITIVE)
+    joint_opt_cam_lr: float = num(0.001, **RATE)
     ba_min_keyframes: int = num(4, **NONNEG)
     # ours: keyframe images as loaded (float32) or 8-bit colour + float16 depth (compact, 3.2x less memory)
     keyframe_storage: str = choice("float32", ("float32", "compact"))
@@ -190,8 +204,8 @@ class MappingConfig:
 class MeshingConfig:
     """Mesh extraction: grid ``resolution`` (metres), points per SDF ``batch``, the visibility hull and culling."""
 
-    resolution: float = num(0.01, **POSITIVE)
-    batch: int = num(500000, **COUNT)
+    resolution: float = num(0.01, **METRES)
+    batch: int = num(500000, lo=1, hi=1_000_000_000)
     hull_scale: float = num(1.02, **POSITIVE)
     hull_points_per_frame: int = num(2000, **COUNT)
     cull: bool = True
@@ -203,7 +217,7 @@ class EvaluationConfig:
     """Reconstruction metrics against a ground-truth mesh: points sampled per mesh, ICP alignment first, and the
     number of random views of Depth L1 (0: skip it)."""
 
-    samples: int = num(200000, **COUNT)
+    samples: int = num(200000, lo=1, hi=1_000_000_000)
     icp: bool = True
     depth_l1_views: int = num(1000, **NONNEG)
 
@@ -213,9 +227,9 @@ class Config:
     """The resolved configuration (written as ``config.yaml`` next to a run's outputs)."""
 
     name: str = "custom"
-    seed: int = num(0, **NONNEG)
+    seed: int = num(0, lo=0, hi=2**32 - 1 - 7919)  # numpy seeds are 32-bit; the mapper draws from seed + 7919
     device: str = "cpu"
-    threads: int = num(0, **NONNEG)  # 0 = leave torch's default
+    threads: int = num(0, lo=0, hi=1024)  # 0 = leave torch's default
     keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.runtime)
     parallel: bool = False  # mapping on a worker thread beside the tracker (slam.map_worker)
     checkpoint_every: int = num(0, **NONNEG)  # frames between checkpoints (0: by time, checkpoint_interval_s)

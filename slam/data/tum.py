@@ -222,7 +222,7 @@ class TUMDataset(RGBDDataset):
 
         if use_file:
             rgb_ts, rgb_files, depth_files = self._read_associations(assoc_file)
-            source = assoc_file
+            source, n_rgb = assoc_file, len(rgb_ts)
         else:
             rgb_ts, rgb_files = read_tum_list(root / "rgb.txt")
             depth_ts, dfiles = read_tum_list(root / "depth.txt")
@@ -232,6 +232,7 @@ class TUMDataset(RGBDDataset):
             dts = depth_ts[order]
             nd = order[_nearest(dts, rgb_ts)] if len(dts) > 1 else np.zeros(len(rgb_ts), dtype=np.int64)
             keep = np.abs(depth_ts[nd] - rgb_ts) < max_dt
+            n_rgb = len(rgb_ts)
             rgb_ts = rgb_ts[keep]
             rgb_files = [f for f, k in zip(rgb_files, keep) if k]
             depth_files = [dfiles[j] for j, k in zip(nd, keep) if k]
@@ -259,9 +260,13 @@ class TUMDataset(RGBDDataset):
                     else:
                         last = rgb_ts[k]
         if not keep.any():
+            # a recording without groundtruth.txt gets here when no colour frame has a depth frame within max_dt
+            gt_span = (f"ground truth {gt_ts[0]:.3f}..{gt_ts[-1]:.3f}" if gt_path is not None and len(gt_ts)
+                       else "no ground truth")
+            what = "depth and ground truth" if gt_path is not None else "a depth frame"
             raise SlamInputError(
-                f"{source}: empty association: no rgb frame has depth and ground truth within {max_dt} s "
-                f"(rgb {len(rgb_ts)} frames, ground truth {gt_ts[0]:.3f}..{gt_ts[-1]:.3f})"
+                f"{source}: empty association: no rgb frame has {what} within {max_dt} s "
+                f"(rgb {n_rgb} frames, {gt_span})"
             )
         idx = np.flatnonzero(keep)
         poses = poses[idx]

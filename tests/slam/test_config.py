@@ -101,6 +101,9 @@ def test_every_numeric_key_declares_a_range():
     missing = [k for k, f in _numeric_keys() if "range" not in f.metadata and not k.split(".")[-1] in
                LossWeights.__dataclass_fields__]
     assert missing == []
+    # and an upper bound: a value no run can use (1e30 pixels) is refused as the config is read, not mid-run
+    unbounded = [k for k, f in _numeric_keys() if "range" in f.metadata and f.metadata["range"].hi is None]
+    assert unbounded == []
 
 
 def _bad_value(key, rng):
@@ -120,6 +123,28 @@ def test_out_of_range_values_name_key_value_and_range(key):
     bad = _bad_value(key, rng)
     with pytest.raises(SlamInputError, match=rf"config key '{key}' = .* is out of range: must be"):
         load_config("synthetic", [f"{key}={bad}"])
+    # the values a user (or a script's bug) types: never accepted, never a traceback, always one line naming the key
+    for odd in (".inf", "-.inf", ".nan", "-1", "1e30", "1.0e+300"):
+        value = f"[{odd}, {odd}]" if key.endswith(("cell_sizes", "ignore_edge")) else odd
+        with pytest.raises(SlamInputError, match=rf"config key '{key}'") as info:
+            load_config("synthetic", [f"{key}={value}"])
+        assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_max_keyframes_below_three_breaks_the_keep_first_and_last_two_rule(n):
+    with pytest.raises(SlamInputError, match="'mapping.max_keyframes' = .* must be 0 .* or >= 3"):
+        load_config("synthetic", [f"mapping.max_keyframes={n}"])
+    assert load_config("synthetic", ["mapping.max_keyframes=3"]).mapping.max_keyframes == 3
+
+
+def test_ignore_edge_must_leave_pixels_in_the_working_image(tiny_seq, capsys):
+    from slam.cli import main
+
+    # the tiny sequence is 60 x 80: 30 rows off each side leave none
+    assert main(["run", "--data", str(tiny_seq), "--no-mesh", "--quiet", "tracking.ignore_edge=[30, 10]"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("lrslam run: error: config key 'tracking.ignore_edge' = [30, 10] leaves no pixel")
 
 
 def test_moved_keys_say_where_they_went():
@@ -132,7 +157,7 @@ def test_cli_exits_2_with_one_line_for_a_bad_value(capsys):
 
     assert main(["run", "tracking.iters=0", "--no-mesh"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["lrslam run: error: config key 'tracking.iters' = 0 is out of range: must be >= 1"]
+    assert err == ["lrslam run: error: config key 'tracking.iters' = 0 is out of range: must be >= 1 and <= 10000000"]
 
 
 def test_saved_config_reloads_identically(tmp_path):

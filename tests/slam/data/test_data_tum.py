@@ -162,6 +162,14 @@ def test_tum_bad_inputs(tmp_path):
     (root / "associations.txt").write_text("# nothing\n")
     with pytest.raises(SlamInputError, match="associations.txt: empty association"):
         TUMDataset(root, intrinsics=k)
+    # an own recording (no groundtruth.txt) whose depth frames are all further than max_dt from the colour ones
+    root = _write_tum(tmp_path / "g")
+    (root / "groundtruth.txt").unlink()
+    rows = [line.split() for line in (root / "depth.txt").read_text().splitlines() if not line.startswith("#")]
+    (root / "depth.txt").write_text("".join(f"{float(t) + 0.5:.6f} {f}\n" for t, f in rows))
+    with pytest.raises(SlamInputError, match=r"depth.txt: empty association: no rgb frame has a depth frame within "
+                                             r"0.08 s \(rgb 5 frames, no ground truth\)"):
+        TUMDataset(root, intrinsics=k)
     with pytest.raises(SlamInputError, match="not a recognised dataset layout"):
         load_dataset(tmp_path)
     with pytest.raises(SlamInputError, match="not found"):
