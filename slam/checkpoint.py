@@ -8,19 +8,25 @@ mode, the tracker's copy of the map and the mapping calls it has not applied yet
 they are read again from the dataset (deterministically the same), so a checkpoint stays a few MB whatever the
 sequence length; the dataset's fingerprint (frame count and file names) must match on resume.
 
-Written with a temporary name and a rename, so a kill while writing leaves the previous checkpoint intact.
+Written with a temporary name, flushed to the disk and renamed (:mod:`slam.files`), so a kill, a power loss or a
+full disk while writing leaves the previous checkpoint intact; the one before it is kept as ``checkpoint.prev.pt``
+(a hard link, no copy), so a checkpoint damaged after it was written (a truncated copy, a failing disk) still
+leaves one to resume from. ``--resume`` refuses a checkpoint whose config is not the run folder's ``config.yaml``
+(a new run started into the folder and killed before its first checkpoint), naming the keys that differ.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from slam.errors import SlamInputError
+from slam.files import replacing
 from slam.keyframes import Keyframe
 from slam.map_worker import MapDone, MapJob
 from slam.mapper import MapResult
@@ -83,34 +89,108 @@ def run_state(system) -> dict:
     return out
 
 
+def previous_path(path: Path) -> Path:
+    """Where the checkpoint before ``path`` is kept: ``checkpoint.prev.pt`` beside ``checkpoint.pt``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.prev{path.suffix}")
+
+
+def _keep_previous(path: Path) -> None:
+    """Keep the current checkpoint as :func:`previous_path` before it is replaced (a hard link where the
+    filesystem has them, else a copy); ``path`` itself stays in place throughout."""
+    if not path.is_file():
+        return
+    prev = previous_path(path)
+    tmp = prev.with_name(f".{prev.name}.tmp")
+    tmp.unlink(missing_ok=True)
+    try:
+        os.link(path, tmp)
+    except OSError:
+        shutil.copy2(path, tmp)
+    os.replace(tmp, prev)
+
+
 def save_checkpoint(system, path: Path) -> None:
-    """``checkpoint.pt``: the scene checkpoint with the run state, written atomically."""
+    """``checkpoint.pt``: the scene checkpoint with the run state, written atomically and durably.
+
+    Raises:
+        SlamOutputError: it could not be written (a full disk); the previous checkpoint is intact.
+    """
     import tdfields
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
     system.mapper.wait_idle()  # the scene and the keyframes are the worker's while a call runs
     extra = system.checkpoint_extra()
     extra["run"] = run_state(system)
-    tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=extra)
-    os.replace(tmp, path)
+    with replacing(path, "checkpoint") as tmp:
+        tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=extra)
+        _keep_previous(path)
 
 
-def load_run(path: Path) -> dict:
-    """The checkpoint at ``path`` (a dict as :func:`tdfields.load` returns); SlamInputError when it is missing,
-    unreadable, or holds no run state."""
+def _read(path: Path) -> dict:
     import tdfields
 
     try:
-        ckpt = tdfields.load(path)
+        return tdfields.load(path)
     except FileNotFoundError:
         raise SlamInputError(f"{path}: no checkpoint to resume from") from None
     except ValueError as exc:
-        raise SlamInputError(str(exc)) from None
+        prev = previous_path(path)
+        hint = ""
+        if prev.is_file():
+            hint = (f"; the checkpoint before it is kept: mv {prev} {path} and resume again (it goes on from an "
+                    "earlier frame, to the same result)")
+        raise SlamInputError(f"{exc}{hint}") from None
+
+
+def load_run(path: Path, cfg=None) -> dict:
+    """The checkpoint at ``path`` (a dict as :func:`tdfields.load` returns).
+
+    Args:
+        cfg: the run folder's config (``config.yaml``); the checkpoint must have been written under it (the
+            device and :data:`RESUME_KEYS` may differ).
+
+    Raises:
+        SlamInputError: the checkpoint is missing, unreadable (truncated, empty), holds no run state, or was
+            written under another config.
+    """
+    path = Path(path)
+    ckpt = _read(path)
     run = ckpt.get("extra", {}).get("run")
     if not isinstance(run, dict) or run.get("format") != RUN_FORMAT:
-        raise SlamInputError(f"{path}: this checkpoint holds no resumable run state (written by an older version?)")
+        found = run.get("format") if isinstance(run, dict) else None
+        raise SlamInputError(f"{path}: this checkpoint holds no resumable run state of format {RUN_FORMAT} "
+                             f"(found {found or 'none'}: written by another version?)")
+    if cfg is not None:
+        diff = config_differences(ckpt.get("config") or {}, cfg.to_dict())
+        if diff:
+            raise SlamInputError(
+                f"{path} was written under another config than {path.parent / 'config.yaml'} ({'; '.join(diff[:4])}"
+                f"{'; ...' if len(diff) > 4 else ''}): was a new run started into this folder? Run it again "
+                "without --resume, or into another --out")
     return ckpt
+
+
+#: keys a resumed run may change: they decide when the run stops or writes, never what it computes
+RESUME_KEYS = ("device", "data.max_bad_fraction", "data.prefetch", "checkpoint_every", "checkpoint_interval_s")
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and k != "options":
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def config_differences(a: dict, b: dict) -> list[str]:
+    """``"key: A vs B"`` for every dotted key whose value differs between two config dicts (outside
+    :data:`RESUME_KEYS`)."""
+    fa, fb = _flat(a), _flat(b)
+    return [f"{k}: {fa.get(k)!r} vs {fb.get(k)!r}" for k in sorted(set(fa) | set(fb))
+            if k not in RESUME_KEYS and fa.get(k) != fb.get(k)]
 
 
 def restore(system, ckpt: dict) -> int:
@@ -120,10 +200,14 @@ def restore(system, ckpt: dict) -> int:
     if run["fingerprint"] != fingerprint(system):
         raise SlamInputError(f"the data differ from the checkpointed run's ({run['fingerprint']} vs "
                              f"{fingerprint(system)}): resume with the same data folder and config")
-    with torch.no_grad():
-        system.scene.load_state_dict(ckpt["state_dict"])
-        if run["track_scene"] is not None:
-            system.mapper.track_scene.load_state_dict(run["track_scene"])
+    try:
+        with torch.no_grad():
+            system.scene.load_state_dict(ckpt["state_dict"])
+            if run["track_scene"] is not None:
+                system.mapper.track_scene.load_state_dict(run["track_scene"])
+    except RuntimeError as exc:  # missing keys or other shapes: not this config's scene
+        first = str(exc).strip().splitlines()[0]
+        raise SlamInputError(f"the checkpoint's scene does not fit this run's config ({first})") from None
     st = dict(run["state"])
     est = st.pop("est")
     system.state = type(system.state)(**st)

@@ -10,6 +10,11 @@ class SlamInputError(ValueError):
     """Bad user input: the message names the offending file, key or value."""
 
 
+class SlamOutputError(SlamInputError):
+    """An output could not be written (a full disk, no permission): the message names the file and says that what
+    was written before is intact. A :class:`SlamInputError` so the CLI reports it as one line too."""
+
+
 class MissingDependencyError(ImportError):
     """The SLAM client's dependencies (the ``slam`` extra) are not installed; the message is one line naming
     the missing packages and the install command (see :mod:`slam._deps`)."""

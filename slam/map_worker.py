@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import concurrent.futures
 import copy
+import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 
@@ -51,7 +52,6 @@ class MapDone:
     result: MapResult
     seconds: float
     snapshot: dict | None = None
-    skipped_steps: list = field(default_factory=list)
 
 
 class MapWorker:
@@ -78,6 +78,7 @@ class MapWorker:
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map") if parallel else None
         self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
         self._applied_any = False
+        self._abort = threading.Event()  # set by close(abort=True): a call in progress stops at its next iteration
         self.wait_s = 0.0  # time the tracker spent waiting for the mapper
         self.snapshot_s = 0.0  # time spent taking and loading snapshots
 
@@ -85,7 +86,7 @@ class MapWorker:
     def _run(self, job: MapJob) -> MapDone:
         t0 = time.perf_counter()
         res = map_frame(self.scene, job.k, job.color, job.depth, job.pose, self.intr, self.keyframes, self.cfg,
-                        self.gen, first=job.first)
+                        self.gen, first=job.first, should_stop=self._abort.is_set)
         pose = res.pose if (res.ok and job.k > 0) else job.pose
         if job.keyframe and res.ok:
             self.keyframes.add(Keyframe(job.k, job.color.cpu(), job.depth.cpu(), pose.cpu().clone()))
@@ -151,11 +152,11 @@ class MapWorker:
                 f.result()
                 self.wait_s += time.perf_counter() - t0
 
-    @property
-    def busy(self) -> bool:
-        return bool(self._queue)
-
-    def close(self) -> None:
+    def close(self, abort: bool = False) -> None:
+        """Shut the worker down; ``abort``: end a call in progress at its next iteration and do not wait for it
+        (its work is lost; the map is then unusable, so nothing may be saved from it afterwards)."""
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            if abort:
+                self._abort.set()
+            self._pool.shutdown(wait=not abort, cancel_futures=True)
             self._pool = None

@@ -35,6 +35,10 @@ class MapResult:
     skipped: int = 0
 
 
+class MappingAborted(Exception):
+    """A mapping call ended early by its ``should_stop`` (the run is being abandoned)."""
+
+
 def finite_step(loss: torch.Tensor, params: list[torch.Tensor]) -> bool:
     """Whether ``loss`` and every gradient of ``params`` (after ``loss.backward()``) are finite."""
     grads = [p.grad for p in params if p.grad is not None]
@@ -60,6 +64,7 @@ def map_frame(
     cfg: Config,
     generator: torch.Generator,
     first: bool = False,
+    should_stop=None,
 ) -> MapResult:
     """One mapping call for frame ``index``.
 
@@ -69,6 +74,8 @@ def map_frame(
         pose: ``[7]`` current estimated pose.
         keyframes: the store (refined poses written back when BA runs).
         first: the first-frame warm-up (``iters_first``, learning rates x ``lr_first_factor``).
+        should_stop: checked before every iteration; True raises :class:`MappingAborted` (a second Ctrl-C: the
+            call's work is thrown away, so the map is left mid-call and must not be saved).
 
     Returns:
         :class:`MapResult` with the (possibly BA-refined) current pose.
@@ -121,6 +128,8 @@ def map_frame(
     last = float("nan")
     free_dev = free.to(device)
     for _ in range(iters):
+        if should_stop is not None and should_stop():
+            raise MappingAborted(f"mapping call of frame {index} aborted")
         if cam is not None:
             poses = poses0.clone()
             poses[free_dev] = cam

@@ -1,29 +1,24 @@
 """A run's outputs: the TUM trajectories, ``metrics.json``, the trajectory plot, the scene checkpoint, the mesh
-and its reconstruction metrics. Every file is written to a temporary name and renamed, so a reader (or a run
-killed while writing) never sees a half-written file.
+and its reconstruction metrics. Every file is written through :mod:`slam.files` (a temporary name, fsync, a
+rename): a reader, or a run killed or out of disk while writing, never sees a half-written file, and a write that
+fails raises :class:`slam.errors.SlamOutputError` naming the file.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
+from slam.files import atomic_write_text, replacing
+from slam.frames import readable_depth
 from slam.runtime import cpu_name
 from slam.scene import parameter_counts
 
 log = logging.getLogger("slam")
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def frame_timestamps(system) -> np.ndarray:
@@ -41,13 +36,11 @@ def write_trajectories(system, out: Path) -> None:
 
     ts = frame_timestamps(system)
     poses = system.poses_matrix()
-    tmp = out / ".trajectory.txt.tmp"
-    seval.write_tum_trajectory(tmp, ts, poses)
-    os.replace(tmp, out / "trajectory.txt")
+    with replacing(out / "trajectory.txt", "trajectory") as tmp:
+        seval.write_tum_trajectory(tmp, ts, poses)
     if system.gt is not None:
-        tmp = out / ".trajectory_gt.txt.tmp"
-        seval.write_tum_trajectory(tmp, ts, system.gt[: len(poses)].numpy())
-        os.replace(tmp, out / "trajectory_gt.txt")
+        with replacing(out / "trajectory_gt.txt", "ground-truth trajectory") as tmp:
+            seval.write_tum_trajectory(tmp, ts, system.gt[: len(poses)].numpy())
 
 
 def trajectory_metrics(system, out: Path | None = None, plot: bool = True) -> dict:
@@ -112,20 +105,11 @@ def write_frames(system, out: Path) -> None:
         sec = st.frame_times[k] if k < len(st.frame_times) else ""
         w.writerow([k, i, f"{sec:.4f}" if sec != "" else "", int(st.trusted[k]), t.get("loss", ""), t.get("iters", ""),
                     t.get("inliers", "")])
-    atomic_write_text(out / "frames.csv", buf.getvalue())
+    atomic_write_text(out / "frames.csv", buf.getvalue(), "per-frame table")
 
 
 def write_metrics(metrics: dict, out: Path) -> None:
-    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2, default=str))
-
-
-def save_scene(system, path: Path) -> None:
-    """The scene as a self-describing ``tdfields`` checkpoint (config, state_dict, poses, bounds, keyframes)."""
-    import tdfields
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=system.checkpoint_extra())
-    os.replace(tmp, path)
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2, default=str), "metrics")
 
 
 def write_mesh(system, out: Path, metrics: dict):
@@ -135,9 +119,8 @@ def write_mesh(system, out: Path, metrics: dict):
     m = system.mesh()
     metrics["mesh_s"] = time.perf_counter() - t0
     metrics["mesh_faces"] = int(len(m.faces))
-    tmp = out / ".mesh.tmp.ply"
-    m.export(tmp)
-    os.replace(tmp, out / "mesh.ply")
+    with replacing(out / "mesh.ply", "mesh") as tmp:
+        m.export(tmp)
     gt_mesh = getattr(system.ds, "gt_mesh_path", None)
     if gt_mesh is not None and len(m.faces):
         metrics["reconstruction"] = reconstruction(m, gt_mesh, system)
@@ -158,7 +141,7 @@ def reconstruction(mesh, gt_mesh_path, system) -> dict:
     if system.gt is not None:
         depths = None
         if cfg.meshing.cull_depth_test:
-            depths = [np.asarray(system.ds[i].depth, dtype=np.float32) for i in system.indices]
+            depths = (readable_depth(system.ds, i) for i in system.indices)
         gt = seval.cull_mesh(gt, system.gt.numpy(), system.intr, depths=depths, truncation=cfg.scene.truncation)
     out = {}
     if cfg.evaluation.icp:  # one alignment for both metrics

@@ -23,14 +23,16 @@ def register(subparsers) -> None:
             "trajectory_gt.txt, mesh.ply, trajectory.png, config.yaml, checkpoint.pt, metrics.json. "
             "A checkpoint is written every minute (checkpoint_every / checkpoint_interval_s); Ctrl-C or SIGTERM "
             "finish the current frame, write the outputs so far (metrics.json marked partial) and say how to "
-            "go on with --resume."
+            "go on with --resume (the resumed run gives the uninterrupted run's trajectory, byte for byte); a "
+            "second Ctrl-C stops at once."
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "overrides are dotted key=value pairs, e.g. tracking.iters=20 representation=eslam bound=auto\n"
             "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu,\n"
             "         7scenes, ...\n"
-            "resume an interrupted run:  lrslam run --resume runs/rpy"
+            "resume an interrupted run:  lrslam run --resume runs/rpy   (only device, data.max_bad_fraction,\n"
+            "         data.prefetch, checkpoint_every and checkpoint_interval_s may be changed on resume)"
         ),
     )
     p.add_argument("--config", default=None, help="preset name or YAML file (default: synthetic)")
@@ -39,6 +41,9 @@ def register(subparsers) -> None:
     p.add_argument("--device", default=None, choices=["cpu", "cuda"], help="torch device (default: the config's)")
     p.add_argument("--resume", metavar="OUT_DIR", default=None,
                    help="go on from the latest checkpoint of this run folder (same config and data)")
+    p.add_argument("--stop-after", metavar="N", type=int, default=None,
+                   help="stop like Ctrl-C once N frames are done (outputs so far, a checkpoint; exit 0): split a "
+                        "long run into time-boxed jobs with --resume")
     p.add_argument("--no-mesh", action="store_true", help="skip mesh extraction and reconstruction metrics")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     v = p.add_argument_group("Rerun viewer (needs rerun-sdk: the viewer extra)")
@@ -59,20 +64,20 @@ def register(subparsers) -> None:
 
 def main(args) -> int:
     from slam.config import load_config
+    from slam.config.load import parse_overrides
     from slam.runner import RunInterrupted, resume_config, run_to_folder
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if args.resume is not None:
-        given = [flag for flag, v in (("--config", args.config), ("--data", args.data), ("--out", args.out),
-                                      ("key=value overrides", args.overrides)) if v]
+        given = [flag for flag, v in (("--config", args.config), ("--data", args.data), ("--out", args.out)) if v]
         if given:
             raise SlamInputError(f"--resume continues a run with its own config and data; drop {', '.join(given)}")
         out = Path(args.resume)
-        cfg = resume_config(out)
+        over = _flatten(parse_overrides(args.overrides))
         if args.device is not None:
-            cfg.device = args.device
-        metrics_path = out / "metrics.json"
-        if metrics_path.is_file() and not json.loads(metrics_path.read_text()).get("partial", False):
+            over["device"] = args.device
+        cfg = resume_config(out, over)
+        if _complete(out):
             print(f"{out}: this run is complete; nothing to resume")
             return 0
     else:
@@ -83,11 +88,13 @@ def main(args) -> int:
             overrides.append(f"device={args.device}")
         cfg = load_config(args.config or "synthetic", overrides)
         out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"
+    if args.stop_after is not None and args.stop_after < 1:
+        raise SlamInputError(f"--stop-after must be at least 1 frame, got {args.stop_after}")
     observers = _viewer(args)
     t0 = time.perf_counter()
     try:
         metrics = run_to_folder(cfg, out, progress=not args.quiet, mesh=not args.no_mesh,
-                                resume=args.resume is not None, observers=observers)
+                                resume=args.resume is not None, observers=observers, stop_after=args.stop_after)
     except RunInterrupted as exc:
         print(f"lrslam run: {exc}", file=sys.stderr)
         return exc.exit_code
@@ -104,6 +111,25 @@ def main(args) -> int:
         where = f"recording in {args.rerun} (view it with: rerun {args.rerun})" if args.rerun else "streamed"
         print(f"Rerun {where}; logging took {obs.log_s:.2f} s in this process ({share:.1f} % of the loop)")
     return 0
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def _complete(out: Path) -> bool:
+    """Whether ``out`` holds a finished run (a metrics.json not marked partial); a damaged one counts as not."""
+    try:
+        metrics = json.loads((out / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(metrics, dict) and not metrics.get("partial", False)
 
 
 def _viewer(args) -> list:

@@ -65,13 +65,21 @@ def test_too_many_bad_frames_stop_the_run_after_writing_its_outputs(excerpt, tmp
     _copy_with_truncated(excerpt, data, [2, 3, 4])
     out = tmp_path / "out"
     code = main(["run", "--config", "tum/fr1_rpy-cpu", "--data", str(data), "--out", str(out), "--quiet",
-                 "--no-mesh", *FAST, "data.max_bad_fraction=0.2"])
+                 "--no-mesh", *FAST, "data.max_bad_fraction=0.2", "checkpoint_every=1"])
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("lrslam run: error: 2 of the first") and "max_bad_fraction = 0.2" in err[-1]
     m = json.loads((out / "metrics.json").read_text())
-    assert m["partial"] is True and "max_bad_fraction" in m["error"]
-    assert (out / "checkpoint.pt").is_file() and (out / "trajectory.txt").is_file()
+    assert m["partial"] is True and "max_bad_fraction" in m["error"] and m["frames_done"] == 4
+    assert (out / "trajectory.txt").is_file()
+    from slam.checkpoint import load_run
+
+    # the checkpoint is the last good one (after frame 2), not the state over the limit: resuming it with a
+    # higher limit goes on; from the failing state it would fail again after one frame
+    assert load_run(out / "checkpoint.pt")["extra"]["run"]["next"] == 3
+    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh", "data.max_bad_fraction=0.5"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert not m.get("partial") and m["num_frames"] == 8 and m["resumed_from"] == 3
 
 
 class _Edit:

@@ -68,6 +68,8 @@ def test_kill_9_then_resume_gives_the_uninterrupted_trajectory(tiny_seq, tmp_pat
     proc.kill()  # SIGKILL: no handler runs, only the checkpoint on disk survives
     proc.wait()
     assert not (out / "metrics.json").exists()
+    # as a kill in the middle of writing the next checkpoint leaves it: half a file under the temporary name
+    (out / ".checkpoint.tmp.pt").write_bytes((out / "checkpoint.pt").read_bytes()[:1000])
     done = subprocess.run(_cmd("--resume", str(out)), env=_env(), cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
@@ -106,9 +108,91 @@ def test_resume_refuses_other_settings_and_non_run_folders(tmp_path, capsys):
     from slam.cli import main
 
     assert main(["run", "--resume", str(tmp_path), "tracking.iters=3"]) == 2
-    assert "drop key=value overrides" in capsys.readouterr().err
-    assert main(["run", "--resume", str(tmp_path)]) == 2
     assert "not a run folder" in capsys.readouterr().err
+    (tmp_path / "config.yaml").write_text("seed: 0\n")
+    assert main(["run", "--resume", str(tmp_path), "tracking.iters=3"]) == 2
+    assert "'tracking.iters' would change what it computes" in capsys.readouterr().err
+    assert main(["run", "--resume", str(tmp_path), "--config", "synthetic"]) == 2
+    assert "drop --config" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------ stops, resumes and damaged files
+INPROC = TINY[1:] + ["data.max_frames=10"]  # synthetic maps frames 0, 4, 8 and the last: in parallel mode the
+# call of frame 4 is still pending (lag 4) while frames 5-7 are tracked
+
+
+class _SignalAt:
+    """An observer that sends this process SIGINT after frame ``k``, as a user's Ctrl-C would."""
+
+    def __init__(self, k: int, times: int = 1):
+        self.k, self.times = k, times
+
+    def on_start(self, system):
+        pass
+
+    def on_frame(self, system, rec):
+        if rec.k == self.k:
+            for _ in range(self.times):
+                os.kill(os.getpid(), signal.SIGINT)
+
+    def on_finish(self, system, metrics, mesh=None):
+        pass
+
+    def close(self):
+        pass
+
+
+def _traj(out: Path) -> str:
+    return (out / "trajectory.txt").read_text()
+
+
+@pytest.mark.parametrize("parallel", ["true", "false"])
+def test_an_interrupt_with_a_mapping_call_pending_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path, parallel):
+    from slam.checkpoint import load_run
+    from slam.config import load_config
+    from slam.runner import RunInterrupted, run_to_folder
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, f"parallel={parallel}"])
+    run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
+    for at in (2, 5):
+        out = tmp_path / f"stopped-at-{at}"
+        with pytest.raises(RunInterrupted) as info:
+            run_to_folder(cfg, out, progress=False, mesh=False, observers=[_SignalAt(at)])
+        assert info.value.exit_code == 130 and info.value.done == at + 1
+        pending = load_run(out / "checkpoint.pt")["extra"]["run"]["pending"]
+        # the point of the test: a call submitted at frame 4 is still owed to the schedule when frame 5 stops
+        assert [p["k"] for p in pending] == ([4] if parallel == "true" and at == 5 else [])
+        run_to_folder(cfg, out, progress=False, mesh=False, resume=True)
+        assert _traj(out) == _traj(tmp_path / "full"), f"stopped after frame {at}"
+
+
+def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, capsys):
+    """--stop-after is a resumable stop; a truncated checkpoint is refused in one line and the one before it is
+    kept; a checkpoint written under another config than config.yaml is refused, naming the key."""
+    from slam.checkpoint import previous_path
+    from slam.cli import main
+
+    out = tmp_path / "run"
+    base = ["run", "--data", str(tiny_seq), "--out", str(out), "--quiet", "--no-mesh", *INPROC, "checkpoint_every=2"]
+    assert main([*base, "--stop-after", "5"]) == 0
+    assert "Resume with: lrslam run --resume" in capsys.readouterr().err
+    ckpt, prev = out / "checkpoint.pt", previous_path(out / "checkpoint.pt")
+    assert prev.is_file() and prev.read_bytes() != ckpt.read_bytes()  # periodic at 4, the stop's at 5
+    ckpt.write_bytes(ckpt.read_bytes()[: ckpt.stat().st_size // 2])  # a truncated copy
+    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a readable checkpoint" in err[0] and f"mv {prev} {ckpt}" in err[0]
+    prev.replace(ckpt)
+    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 0
+    # a new run with another config started into the folder (it writes config.yaml first) and killed before its
+    # first checkpoint: the checkpoint on disk is the old run's
+    from slam.config import load_config, save_config
+
+    save_config(load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, "tracking.iters=4"]), out / "config.yaml")
+    (out / "metrics.json").write_text('{"partial": true}')
+    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "written under another config" in err[0] and "tracking.iters" in err[0]
 
 
 def test_checkpoint_roundtrip_restores_every_piece_of_state(tiny_seq):
@@ -134,3 +218,59 @@ def test_checkpoint_roundtrip_restores_every_piece_of_state(tiny_seq):
         assert na == nb and torch.equal(pa, pb)
     a.close()
     b.close()
+
+
+def test_a_full_disk_mid_run_stops_with_one_line_and_loses_nothing(tiny_seq, tmp_path, monkeypatch, capsys):
+    """The disk fills after the checkpoint of frame 2: the next checkpoint fails, the run stops with one line
+    naming the file, the checkpoint of frame 2 is intact (no temporary file left), and once there is room again
+    --resume finishes it to the uninterrupted trajectory."""
+    import errno
+
+    import slam.files
+    from slam.checkpoint import load_run
+    from slam.cli import main
+
+    args = ["--data", str(tiny_seq), "--quiet", "--no-mesh", *INPROC, "checkpoint_every=2"]
+    assert main(["run", "--out", str(tmp_path / "full"), *args]) == 0
+    real, written = slam.files.fsync_file, []
+
+    def full_after_one_checkpoint(path):
+        if path.name.startswith(".checkpoint"):
+            if written:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            written.append(path)
+        return real(path)
+
+    monkeypatch.setattr(slam.files, "fsync_file", full_after_one_checkpoint)
+    out = tmp_path / "run"
+    assert main(["run", "--out", str(out), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (f"lrslam run: error: {out / 'checkpoint.pt'}: checkpoint not written (No space left on "
+                       "device); the previous file, if any, is intact")
+    assert load_run(out / "checkpoint.pt")["extra"]["run"]["next"] == 2
+    assert not [p for p in out.iterdir() if p.name.endswith(".tmp.pt")]
+    monkeypatch.setattr(slam.files, "fsync_file", real)
+    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 0
+    assert _traj(out) == _traj(tmp_path / "full")
+
+
+@pytest.mark.slow
+def test_a_second_ctrl_c_stops_at_once_during_a_long_mapping_call(tiny_seq, tmp_path):
+    """The first Ctrl-C waits for the mapping call in progress (its checkpoint needs it); the second one ends that
+    call at its next iteration and exits 130 without waiting for it (a warm-up of 100000 iterations here)."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen(_cmd("--data", str(tiny_seq), "--out", str(out), *RUN, "parallel=true",
+                                 "mapping.iters_first=100000"), env=_env(), cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    t0 = time.time()
+    while not (out / "config.yaml").exists() and time.time() - t0 < 60:
+        time.sleep(0.1)
+    time.sleep(3.0)  # set up, the warm-up call running
+    proc.send_signal(signal.SIGINT)
+    time.sleep(1.0)
+    assert proc.poll() is None  # still waiting for the warm-up
+    t1 = time.time()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert time.time() - t1 < 10, "the second Ctrl-C waited for the mapping call"
+    assert proc.returncode == 130 and "Traceback" not in err.decode()
