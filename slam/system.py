@@ -30,8 +30,8 @@ from slam.observers import FrameRecord, Observer
 from slam.runtime import keep_freed_memory, set_threads
 from slam.setup import auto_bound, frame_indices
 from slam.scene import SceneModel, scene_aabb
-from slam.rendering import sample_pixels
-from slam.tracker import evaluate_pose, track_frame
+from slam.recovery import TrackInput, icp_start, recover, relocalise
+from slam.tracker import track_frame
 from slam.tracking_guard import TrackingGuard
 
 log = logging.getLogger("slam")
@@ -50,12 +50,23 @@ class RunState:
     events: list = field(default_factory=list)
     bad_frames: int = 0
     initialized: bool = False  # the first-frame warm-up has run (on the first frame with depth)
-    prev_depth_k: int = -1  # position of the last frame with depth (ICP's reference)
+    prev_depth_k: int = -1  # position of the last trusted frame with depth (ICP's reference)
+    reloc_tried_at: int = -1  # position of the last relocalisation attempt
     tracking: list = field(default_factory=list)  # per tracked frame: loss, iterations, inlier share
 
 
 class TooManyBadFrames(SlamInputError):
     """More than ``data.max_bad_fraction`` of the frames read so far could not be read."""
+
+
+def _check_edges(cfg: Config, height: int, width: int) -> None:
+    """``tracking.ignore_edge`` must leave pixels to track in the working image (it is only known once the first
+    frame is read, so the config loader cannot check it)."""
+    rows, cols = cfg.tracking.ignore_edge
+    if 2 * rows >= height or 2 * cols >= width:
+        raise SlamInputError(
+            f"config key 'tracking.ignore_edge' = {cfg.tracking.ignore_edge} leaves no pixel to track in the "
+            f"{height}x{width} working image: rows must be < {(height + 1) // 2}, columns < {(width + 1) // 2}")
 
 
 class SLAM:
@@ -85,6 +96,7 @@ class SLAM:
         self.state = RunState()
         first = self._first_readable()
         self.intr = first.intrinsics
+        _check_edges(cfg, self.intr.height, self.intr.width)
         self.c2w0, self.c2w0_source = self._initial_pose()
         if cfg.scene.bound == "auto":
             k = max(1, min(cfg.scene.bound_auto_frames, len(self.indices)))
@@ -157,18 +169,6 @@ class SLAM:
             return constant_velocity(est[-1], est[-2]), "constant-velocity pose"
         return est[-1].clone(), "previous pose"
 
-    def _icp_start(self, guess: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
-        """``tracking.init=icp``: the previous pose times the depth-ICP motion from the previous frame with depth
-        (started at the motion ``guess`` implies); ``guess`` itself when ICP does not converge."""
-        from slam.odometry import icp_relative_pose
-
-        prev = pose_to_matrix(self.state.est[-1]).double()
-        rel0 = torch.linalg.solve(prev, pose_to_matrix(guess).double())
-        res = icp_relative_pose(self._prev_depth, depth, self.intr, init=rel0)
-        if not res.ok:
-            return guess
-        return matrix_to_pose((prev @ res.relative.double()).float())
-
     def _apply(self, done) -> None:
         """Results of finished mapping calls: the BA-refined pose of the mapped frame, events."""
         for d in done:
@@ -180,57 +180,67 @@ class SLAM:
             if d.result.skipped:
                 self._event(k, f"mapping: {d.result.skipped} step(s) skipped (non-finite loss or gradient)")
 
-    def _dt(self, k: int) -> float:
-        """Seconds between frame ``k`` and the frame before it (30 Hz per dataset frame without timestamps)."""
+    def _dt(self, k: int, j: int | None = None) -> float:
+        """Seconds from frame ``j`` (default ``k - 1``) to frame ``k`` (30 Hz per dataset frame without
+        timestamps)."""
+        j = max(k - 1, 0) if j is None else j
         ts = getattr(self.ds, "timestamps", None)
         if ts is None or k == 0:
-            return (self.indices[k] - self.indices[max(k - 1, 0)]) / 30.0
-        return float(ts[self.indices[k]]) - float(ts[self.indices[k - 1]])
+            return (self.indices[k] - self.indices[j]) / 30.0
+        return float(ts[self.indices[k]]) - float(ts[self.indices[j]])
 
-    def _guard(self, k: int, frame, res, prediction: torch.Tensor, starts: dict):
-        """Check a tracking result (:mod:`slam.tracking_guard`); on an implausible one, track again from each of
-        ``starts`` (name -> ``[7]`` pose) with twice the iterations and keep, among the plausible candidates, the
-        one with the lowest loss on one common set of pixels. With none plausible the frame is lost: its pose is
-        the ``prediction``. Returns ``(result, trusted)``."""
-        cfg = self.cfg
-        prev = self.state.est[-1]
-        dt = self._dt(k)
-        why = self.guard.reasons(res.loss, res.inliers, prev, res.pose, dt)
-        if not why:
-            self.guard.accept(res.loss)
+    def _last_trusted(self) -> int:
+        """Position of the last trusted frame (-1: none yet)."""
+        tr = self.state.trusted
+        return next((j for j in range(len(tr) - 1, -1, -1) if tr[j]), -1)
+
+    def _track(self, k: int, frame, pred: torch.Tensor, what: str):
+        """Track frame ``k`` from the ICP start (or ``pred``), check it, recover or relocalise
+        (:mod:`slam.recovery`). Returns ``(result, trusted)``."""
+        cfg, st = self.cfg, self.state
+        init = pred
+        if cfg.tracking.init == "icp" and self._prev_depth is not None:
+            # ICP registers against the last trusted frame with depth: chain its motion onto that frame's pose
+            init, _ = icp_start(st.est[st.prev_depth_k], self._prev_depth, pred, frame.depth, self.intr)
+        inp = TrackInput(self.mapper.track_scene, frame.color, frame.depth, self.intr, cfg, self.gen, self.guard)
+        res = track_frame(inp.scene, frame.color, frame.depth, self.intr, init, cfg, self.gen)
+        last = self._last_trusted()
+        anchor, dt = (st.est[last], self._dt(k, last)) if last >= 0 else (st.est[-1], self._dt(k))
+        if not res.ok:
+            res.pose, trusted, lost = pred, False, f"tracking failed ({res.message}): {what} used"
+        else:
+            starts = {"start": init, what: pred, "previous pose": st.est[-1]}
+            if 0 <= last < k - 1:
+                starts["last trusted pose"] = st.est[last]
+            res, trusted, lost = recover(inp, res, anchor, dt, starts, pred, lambda m, **x: self._event(k, m, **x))
+        if trusted:
             return res, True
-        if not cfg.tracking.recovery:
-            res.pose = prediction.clone()
-            self._event(k, f"tracking lost ({'; '.join(why)}): predicted pose kept, frame not mapped", lost=True)
-            return res, False
-        H, W = frame.depth.shape
-        v, u = sample_pixels(H, W, 2 * cfg.tracking.pixels, *cfg.tracking.ignore_edge, generator=self.gen)
-        scene = self.mapper.track_scene
-        cands = [("first attempt", res)]
-        for name, start in starts.items():
-            r = track_frame(scene, frame.color, frame.depth, self.intr, start, cfg, self.gen,
-                            iters=2 * cfg.tracking.iters, patience=0)
-            if r.ok:
-                cands.append((name, r))
-        scored = []
-        for name, r in cands:
-            if self.guard.reasons(r.loss, r.inliers, prev, r.pose, dt):
-                continue  # only plausible candidates compete
-            loss, inl = evaluate_pose(scene, frame.color, frame.depth, self.intr, r.pose, cfg, v, u)
-            scored.append((loss, name, r))
-        if scored:
-            _, name, best = min(scored, key=lambda c: c[0])
-            best.iters = sum(r.iters for _, r in cands)
-            self.guard.accept(best.loss)
-            self._event(k, f"tracking implausible ({'; '.join(why)}); recovered by tracking again from the "
-                           f"{name}", recovered=True)
-            return best, True
-        # a pose no check accepts is worse than the motion model's guess: keep the prediction, do not map
-        res.pose = prediction.clone()
-        res.iters = sum(r.iters for _, r in cands)
-        self._event(k, f"tracking lost ({'; '.join(why)}); {len(cands) - 1} recovery attempts failed: predicted "
-                       "pose kept, frame not mapped", lost=True)
+        untrusted = k - 1 - last  # frames in a row before this one without a trusted pose
+        n = cfg.tracking.relocalize_after
+        if n and last >= 0 and untrusted >= n and (st.reloc_tried_at <= last or k - st.reloc_tried_at >= n):
+            best, found = self._relocalise(k, inp, anchor, dt, pred, untrusted)
+            if best is not None:
+                self._event(k, f"{lost}; relocalised from the {found} after {untrusted} untrusted frames "
+                               "(loss history restarted)", relocalised=True)
+                best.iters += res.iters
+                return best, True
+            lost += f"; relocalisation after {untrusted} untrusted frames found no plausible pose"
+        self._event(k, f"{lost}, frame not mapped", lost=True)
         return res, False
+
+    def _relocalise(self, k: int, inp: TrackInput, anchor: torch.Tensor, dt: float, pred: torch.Tensor,
+                    untrusted: int):
+        """Relocalise frame ``k`` against the keyframes (read once the mapper is idle, so the same ones whatever
+        the threads' timing). Returns ``(result or None, the start it came from)``."""
+        self.state.reloc_tried_at = k
+        self.mapper.wait_idle()
+        kfs = list(self.keyframes.frames)
+        if not kfs:
+            return None, ""
+        best, found, _ = relocalise(inp, kfs, anchor, dt, pred, lambda j: int(self.indices[j]))
+        if best is not None:
+            self.guard.reset(best.loss)
+        return best, found
 
     def _check_bad_frames(self) -> None:
         n, total = len(self.state.est), len(self.indices)
@@ -266,18 +276,8 @@ class SLAM:
             trusted = frame.has_depth  # the first frame with depth starts the map at this pose
         else:
             pred, what = self._prediction(k)
-            init = pred
-            if cfg.tracking.init == "icp" and self._prev_depth is not None:
-                init = self._icp_start(pred, frame.depth)
-            res = track_frame(self.mapper.track_scene, frame.color, frame.depth, self.intr, init, cfg, self.gen)
+            res, trusted = self._track(k, frame, pred, what)
             tracked = True
-            if not res.ok:
-                self._event(k, f"tracking failed ({res.message}): {what} used")
-                trusted = False
-                res.pose = pred
-            else:
-                res, trusted = self._guard(k, frame, res, pred,
-                                           {"start": init, what: pred, "previous pose": st.est[-1]})
             st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
                                 "inliers": res.inliers, "trusted": trusted})
             pose = res.pose
@@ -301,17 +301,23 @@ class SLAM:
                            tracked=tracked, mapped=mapped)
 
     def finish(self) -> None:
-        """Wait for the mapper and apply its last results (before outputs or a checkpoint)."""
+        """Wait for the mapper and apply its last results: at the end of the sequence, before the final outputs.
+        Never on a stop: a checkpoint keeps the pending calls instead (:mod:`slam.checkpoint`), so a resumed run
+        applies them on the frames the uninterrupted run would have."""
         self._apply(self.mapper.drain())
 
-    def close(self) -> None:
+    def close(self, abort: bool = False) -> None:
+        """Stop the reader and the mapper threads; ``abort`` (a second Ctrl-C) ends a mapping call in progress at
+        its next iteration instead of waiting for it."""
         self.frames.close()
-        self.mapper.close()
+        self.mapper.close(abort=abort)
 
     def run(self, progress: bool = True, observers: Sequence[Observer] = (), start: int | None = None,
             should_stop=None, on_frame=None) -> RunState:
         """Process the selected frames from ``start`` (default: where the state left off), with a progress bar
-        (frame, live ATE, frame time) and the observers' ``on_frame`` after each one.
+        (frame, live ATE, frame time) and the observers' ``on_frame`` after each one. After the last frame the
+        mapper is drained (:meth:`finish`); a loop ended by ``should_stop`` or an exception leaves the pending
+        mapping calls queued, as the schedule has them.
 
         Args:
             should_stop: called after each frame; True ends the loop early (an interrupt).
@@ -335,11 +341,11 @@ class SLAM:
                 bar.set_postfix_str(f"frame {self.indices[k]}  ATE {rec.ate_m * 100:.2f} cm  {dt:.2f} s/frame")
                 if on_frame is not None:
                     on_frame(k)
-                if should_stop is not None and should_stop():
-                    break
+                if should_stop is not None and k + 1 < len(self.indices) and should_stop():
+                    return self.state
         finally:
             bar.close()
-            self.finish()
+        self.finish()
         return self.state
 
     # ----------------------------------------------------------------------------------------------- results

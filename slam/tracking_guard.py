@@ -3,9 +3,11 @@
 A result is implausible when its loss is far above the recent frames' (``lost_loss_factor`` times their median),
 when the outlier rule keeps too few rays (``lost_min_inliers``), or when the pose jumps further than a camera
 moves in the time between the frames (``max_speed`` metres per second, ``max_angular_speed`` degrees per
-second). The loop (:class:`slam.system.SLAM`) then tries to recover (longer tracking from several starts, the
-best chosen on common pixels) and, if that fails too, keeps the frame out of the map: a pose the tracker does not
-trust never drags the map with it.
+second). The loop then tries to recover (:mod:`slam.recovery`: longer tracking from several starts, the best
+chosen on common pixels) and, if that fails too, keeps the frame out of the map: a pose the tracker does not trust
+never drags the map with it. After ``relocalize_after`` untrusted frames in a row it relocalises against the
+keyframes and, on success, restarts the history from the recovered frame (:meth:`TrackingGuard.reset`), so a
+camera that turned into space the map did not cover is let back in.
 """
 
 from __future__ import annotations
@@ -42,14 +44,15 @@ class TrackingGuard:
         self.losses: deque[float] = deque(maxlen=HISTORY)
 
     def reasons(self, loss: float, inliers: float, prev: torch.Tensor | None, new: torch.Tensor,
-                dt_s: float) -> list[str]:
+                dt_s: float, use_history: bool = True) -> list[str]:
         """Why a result looks wrong (empty: plausible). ``prev`` / ``new``: ``[7]`` poses; ``dt_s``: seconds
-        between the two frames."""
+        between the two frames; ``use_history=False`` skips the loss-ratio check (relocalisation: the history
+        is from before the gap)."""
         c = self.cfg
         out = []
         if not math.isfinite(loss):
             return ["no finite loss"]
-        if c.lost_loss_factor > 0 and len(self.losses) >= 3:
+        if use_history and c.lost_loss_factor > 0 and len(self.losses) >= 3:
             ref = statistics.median(self.losses)
             if loss > c.lost_loss_factor * ref:
                 out.append(f"loss {loss:.3g} is {loss / ref:.1f}x the recent median {ref:.3g}")
@@ -67,6 +70,12 @@ class TrackingGuard:
         """Record the loss of a result the loop trusts."""
         if math.isfinite(loss):
             self.losses.append(float(loss))
+
+    def reset(self, loss: float) -> None:
+        """Start the history again from one trusted result (after relocalisation: the frames before the gap no
+        longer say what a good loss is here)."""
+        self.losses.clear()
+        self.accept(loss)
 
     def state(self) -> list[float]:
         return list(self.losses)

@@ -63,7 +63,10 @@ def _jump_first_attempt(monkeypatch, frame, always=False):
         return res
 
     track.k = -1
-    monkeypatch.setattr(system_mod, "track_frame", track)
+    import slam.recovery
+
+    monkeypatch.setattr(system_mod, "track_frame", track)  # the first attempt
+    monkeypatch.setattr(slam.recovery, "track_frame", track)  # the recovery attempts
     return track
 
 
