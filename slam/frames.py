@@ -61,6 +61,15 @@ def read_frame(dataset, k: int, index: int, shape: tuple[int, int], device: torc
     return LoadedFrame(k, index, color.to(device, non_blocking=True), depth.to(device, non_blocking=True))
 
 
+def readable_depth(dataset, index: int):
+    """The depth ``[H, W]`` (metres) of dataset frame ``index``, or None when the frame cannot be read: outputs
+    written after a run (culling, meshing) must survive every frame the run itself survived."""
+    try:
+        return dataset[index].depth
+    except (SlamInputError, OSError, ValueError):
+        return None
+
+
 class FrameSource:
     """Frames ``indices[k]`` of ``dataset`` in increasing ``k``, read ``ahead`` frames in advance.
 

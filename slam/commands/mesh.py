@@ -23,7 +23,7 @@ def register(subparsers) -> None:
             "from the dataset when it can still be read; otherwise the camera centres and the box only."
         ),
     )
-    p.add_argument("checkpoint", help="checkpoint.pt from `lrslam run`")
+    p.add_argument("checkpoint", help="a run folder of `lrslam run`, or its checkpoint.pt")
     p.add_argument("--resolution", type=float, default=None, help="grid spacing in metres (default: the run's)")
     p.add_argument("--out", default=None, help="output .ply (default: mesh_<res>.ply next to the checkpoint)")
     p.add_argument("--no-cull", action="store_true", help="skip culling against the frames' view frusta")
@@ -68,9 +68,12 @@ def main(args) -> int:
     import numpy as np
     import torch
 
+    from slam.frames import readable_depth
     from slam.mesher import Hull, extract_mesh, hull_points
 
     path = Path(args.checkpoint)
+    if path.is_dir():
+        path = path / "checkpoint.pt"
     cfg, scene, extra = load_run_checkpoint(path)
     res = args.resolution or cfg.meshing.resolution
     if not res > 0:
@@ -91,9 +94,10 @@ def main(args) -> int:
     if "hull_points" in extra:  # the run's own hull: no data needed
         pts = extra["hull_points"].double().numpy()
     elif ds is not None and kf_idx:
-        depths = [torch.as_tensor(ds[i].depth) for i in kf_idx]
-        pts = hull_points(depths, list(kf_poses), intr, cfg.meshing.hull_points_per_frame,
-                          torch.Generator().manual_seed(cfg.seed))
+        readable = [(torch.as_tensor(d), p) for d, p in zip((readable_depth(ds, i) for i in kf_idx), kf_poses)
+                    if d is not None]
+        pts = hull_points([d for d, _ in readable], [p for _, p in readable], intr,
+                          cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(cfg.seed))
     else:
         pts = np.zeros((0, 3))
         print(f"note: {path} holds no hull points and the run's data cannot be read: meshing without the "
@@ -105,7 +109,11 @@ def main(args) -> int:
 
         depths = None
         if ds is not None and cfg.meshing.cull_depth_test:
-            depths = [np.asarray(ds[i].depth, dtype=np.float32) for i in extra["frame_indices"]]
+            depths = [readable_depth(ds, i) for i in extra["frame_indices"]]
+            bad = sum(d is None for d in depths)
+            if bad:
+                print(f"note: {bad} frame(s) of the run cannot be read: culled by their view frusta only",
+                      file=sys.stderr)
         elif cfg.meshing.cull_depth_test:
             print("note: the run's data cannot be read: culling by the view frusta only (no depth test)",
                   file=sys.stderr)

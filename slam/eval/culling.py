@@ -36,7 +36,7 @@ def visible_vertices(vertices, poses, intrinsics, depths: Iterable | None = None
         poses: ``[N, 4, 4]`` camera-to-world, OpenCV axes; non-finite poses are skipped.
         intrinsics: :class:`slam.data.Intrinsics` of the image the vertices are projected into.
         depths: optional iterable of ``N`` depth maps ``[H, W]`` (metres, 0 invalid; numpy or torch, may be a
-            generator). With depths a vertex also needs ``z <= D(u, v) + truncation`` (bilinear D): it may be
+            generator); a None entry culls that frame by its frustum only (its depth could not be read). With depths a vertex also needs ``z <= D(u, v) + truncation`` (bilinear D): it may be
             hidden by at most ``truncation`` metres.
         truncation: occlusion tolerance in metres (the TSDF truncation, 6 cm).
 
@@ -52,10 +52,11 @@ def visible_vertices(vertices, poses, intrinsics, depths: Iterable | None = None
         depth = None
         if depth_iter is not None:
             try:
-                depth = _np(next(depth_iter))
+                depth = next(depth_iter)
             except StopIteration:
                 raise SlamInputError(f"cull_mesh: {len(poses)} poses but only {i} depth maps") from None
-            if depth.shape != (k.height, k.width):
+            depth = None if depth is None else _np(depth)  # None: that frame's depth is unreadable, frustum only
+            if depth is not None and depth.shape != (k.height, k.width):
                 raise SlamInputError(f"cull_mesh: depth map {i} is {depth.shape}, intrinsics say {(k.height, k.width)}")
         if not np.isfinite(pose).all():
             continue

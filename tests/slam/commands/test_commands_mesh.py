@@ -10,22 +10,46 @@ from slam.errors import SlamInputError
 from slam.scene import SceneModel, scene_aabb
 
 
-@pytest.fixture()
-def checkpoint(tiny_seq, tmp_path):
-    """What ``lrslam run`` saves for a 4-frame run on the tiny sequence (weights untrained, poses exact)."""
+def _save_run(data, path, keyframes=(0,)):
+    """What ``lrslam run`` saves for a 4-frame run on ``data`` (weights untrained, poses exact)."""
     from slam.data import load_dataset
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", "representation=sa_cp", "meshing.resolution=0.1"])
-    ds = load_dataset(tiny_seq)
+    cfg = load_config("synthetic", [f"data.path={data}", "representation=sa_cp", "meshing.resolution=0.1"])
+    ds = load_dataset(data)
     aabb = scene_aabb(cfg.scene.bound, cfg.scene.bound_dividable)
     torch.manual_seed(0)
     scene = SceneModel(cfg, aabb)
     k = ds.intrinsics
     extra = {"poses": ds.gt_poses[:4], "frame_indices": [0, 1, 2, 3], "timestamps": ds.timestamps[:4],
              "bound": cfg.scene.bound, "marching_cubes_bound": cfg.scene.bound, "aabb": aabb.tolist(),
-             "intrinsics": k.as_dict(), "keyframe_indices": [0], "keyframe_poses": ds.gt_poses[:1]}
-    path = tdfields.save(tmp_path / "checkpoint.pt", scene, config=cfg.to_dict(), extra=extra)
+             "intrinsics": k.as_dict(), "keyframe_indices": list(keyframes),
+             "keyframe_poses": ds.gt_poses[list(keyframes)]}
+    path = tdfields.save(path, scene, config=cfg.to_dict(), extra=extra)
     return path, cfg, scene
+
+
+@pytest.fixture()
+def checkpoint(tiny_seq, tmp_path):
+    return _save_run(tiny_seq, tmp_path / "checkpoint.pt")
+
+
+def test_mesh_takes_the_run_folder_and_survives_frames_it_cannot_read(tiny_seq, tmp_path, capsys):
+    """A depth PNG the run skipped as unreadable must not stop ``lrslam mesh``: that frame is culled by its view
+    frustum only, and a keyframe among them gives no hull points."""
+    import shutil
+
+    from slam.cli import main
+
+    data = tmp_path / "data"
+    shutil.copytree(tiny_seq, data)
+    png = data / "results" / "depth000002.png"
+    png.write_bytes(png.read_bytes()[:100])
+    (tmp_path / "run").mkdir()
+    _save_run(data, tmp_path / "run" / "checkpoint.pt", keyframes=(0, 2))
+    assert main(["mesh", str(tmp_path / "run")]) == 0
+    err = capsys.readouterr().err
+    assert "1 frame(s) of the run cannot be read" in err and "Traceback" not in err
+    assert (tmp_path / "run" / "mesh_0.1.ply").is_file()
 
 
 def test_checkpoint_rebuilds_the_config_and_the_weights(checkpoint):
