@@ -26,7 +26,10 @@ class RunSpec:
         backend: tdfields kernel backend for the run (``auto`` / ``torch`` / ``numba``), None = leave as is.
         tag: free text naming the run beyond preset, representation and seed (e.g. a repeat), empty by default.
         progress: show the run's progress bar (only sensible for runs in this process).
-        resume: go on from the folder's checkpoint (set by :func:`execute` for an interrupted run).
+        resume: go on from the folder's checkpoint (set by :func:`execute` for an interrupted run), with the
+            run's own ``config.yaml`` (its threads too: a resumed run computes what it would have).
+        stop_file: the run stops as on Ctrl-C (partial outputs, a checkpoint) once this file exists: how a sweep
+            stopped by Ctrl-C leaves its running runs resumable.
     """
 
     preset: str
@@ -42,6 +45,7 @@ class RunSpec:
     tag: str = ""
     progress: bool = False
     resume: bool = False
+    stop_file: str | None = None
 
     def config_overrides(self) -> list[str]:
         over = [f"representation={self.representation}", f"seed={self.seed}", f"threads={self.threads}",

@@ -57,17 +57,25 @@ def run_one(spec: RunSpec) -> dict:
     The full traceback of a failure also goes to ``run_dir/error.txt``.
     """
     from slam.config import load_config
-    from slam.runner import run_to_folder
+    from slam.runner import RunInterrupted, resume_config, run_to_folder
 
     t0 = time.perf_counter()
+    if spec.stop_file and Path(spec.stop_file).exists():
+        return {**spec.identity(), "status": "interrupted", "error": "the sweep was stopped before this run started",
+                "wall_s": 0.0}
     try:
         with contextlib.ExitStack() as stack:
             if spec.backend is not None:
                 from tdfields import kernels
 
                 stack.enter_context(kernels.use_backend(spec.backend))
-            cfg = load_config(spec.preset, spec.config_overrides())
-            metrics = run_to_folder(cfg, spec.run_dir, progress=spec.progress, mesh=spec.mesh, resume=spec.resume)
+            # a resumed run goes on under its own config.yaml (threads included), not the sweep's current one
+            cfg = resume_config(spec.run_dir) if spec.resume else load_config(spec.preset, spec.config_overrides())
+            metrics = run_to_folder(cfg, spec.run_dir, progress=spec.progress, mesh=spec.mesh, resume=spec.resume,
+                                    stop_file=spec.stop_file)
+    except RunInterrupted as exc:
+        return {**spec.identity(), "status": "interrupted", "error": str(exc), "frames_done": exc.done,
+                "wall_s": time.perf_counter() - t0}
     except Exception as exc:
         tb = traceback.format_exc()
         try:
@@ -89,7 +97,10 @@ class SerialEngine:
 
     def run(self, specs: Sequence[RunSpec], on_result: Callable[[dict], None]) -> None:
         for spec in specs:
-            on_result(run_one(spec))
+            rec = run_one(spec)
+            on_result(rec)
+            if rec["status"] == "interrupted":  # Ctrl-C stopped the run (resumable): it stops the sweep too
+                raise KeyboardInterrupt
 
 
 def require_ray():
@@ -175,22 +186,54 @@ class RayEngine:
             pending = {task.options(num_cpus=cpus_for(spec, self.cpus_per_run, total)).remote(spec): spec
                        for spec in specs}
             try:
-                while pending:
-                    done, _ = ray.wait(list(pending), num_returns=1)
-                    for ref in done:
-                        spec = pending.pop(ref)
-                        try:
-                            rec = ray.get(ref)
-                        except Exception as exc:  # the worker died (out of memory, a signal, a lost node)
-                            rec = failed_record(spec, exc)
-                        on_result(rec)
+                self._collect(pending, on_result, None)
             except BaseException:
-                for ref in pending:
-                    ray.cancel(ref, force=True)
+                self._stop(pending, on_result, specs)
                 raise
         finally:
             if started:
                 ray.shutdown()
+
+
+    def _collect(self, pending: dict, on_result, timeout: float | None) -> None:
+        """Hand finished runs to ``on_result`` until none is pending (or ``timeout`` seconds have passed)."""
+        ray = self.ray
+        t_end = None if timeout is None else time.monotonic() + timeout
+        while pending:
+            left = None if t_end is None else max(t_end - time.monotonic(), 0.0)
+            done, _ = ray.wait(list(pending), num_returns=1, timeout=left)
+            if not done:
+                return
+            for ref in done:
+                spec = pending.pop(ref)
+                try:
+                    rec = ray.get(ref)
+                except Exception as exc:  # the worker died (out of memory, a signal, a lost node)
+                    rec = failed_record(spec, exc)
+                on_result(rec)
+
+    def _stop(self, pending: dict, on_result, specs) -> None:
+        """Ctrl-C of the sweep: runs not started yet are cancelled; running ones are asked to stop through their
+        stop file, which they read after each frame (partial outputs and a checkpoint, so the next sweep resumes
+        them), and are waited for up to :data:`STOP_GRACE_S`; a second Ctrl-C, or the grace running out, kills
+        what is left (those runs go on from their last periodic checkpoint)."""
+        ray = self.ray
+        # not ray.cancel(force=False): it raises KeyboardInterrupt inside a running task, which then writes nothing;
+        # a queued task sees the stop file before its first frame and returns at once
+        for spec in specs:
+            if spec.stop_file:
+                Path(spec.stop_file).touch()
+        try:
+            self._collect(pending, on_result, STOP_GRACE_S)
+        except BaseException:
+            pass
+        finally:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+
+
+#: seconds a stopped sweep waits for its running runs to finish their frame and write their checkpoints
+STOP_GRACE_S = 120.0
 
 
 # --------------------------------------------------------------------------------------------------- running
@@ -210,6 +253,12 @@ def execute(specs: Sequence[RunSpec], engine, out: str | Path | None = None,
         raise SlamInputError(f"two runs of the sweep would write to the same folder {dup}")
     records: dict[str, dict] = {}
     todo = []
+    stop_file = None
+    if out is not None:
+        stop_file = Path(out) / ".stop"  # touched on Ctrl-C: the running runs stop after their frame
+        Path(out).mkdir(parents=True, exist_ok=True)
+        stop_file.unlink(missing_ok=True)
+        specs = [dataclasses.replace(s, stop_file=str(stop_file)) for s in specs]
     for spec in specs:
         m = finished_metrics(spec.run_dir) if reuse else None
         if m is None:

@@ -209,10 +209,69 @@ def test_interrupted_run_goes_on_from_its_checkpoint(tiny_seq, tmp_path):
                       observers=[Interrupt()])
     assert interrupted(spec.run_dir) and finished_metrics(spec.run_dir) is None
     logs = []
-    (rec,) = execute([spec], SerialEngine(), log=logs.append)["runs"]
+    (spec2,) = plan([f"synthetic={tiny_seq}"], ["lrslam"], 1, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False,
+                    threads=2)  # today's sweep asks for 2 threads; the run was started with 1
+    (rec,) = execute([spec2], SerialEngine(), log=logs.append)["runs"]
     assert "1 interrupted runs go on from their checkpoints" in logs
     assert rec["status"] == "ok" and rec["resumed_from"] == 2 and rec["num_frames"] == 4
+    assert rec["threads"] == 1  # the run's own config: what it computes does not depend on when it was resumed
     assert not json.loads((Path(spec.run_dir) / "metrics.json").read_text()).get("partial")
+
+
+def test_a_stopped_sweep_leaves_its_running_runs_resumable(tiny_seq, tmp_path):
+    """Ctrl-C of a sweep touches its stop file: a running run stops after its frame with partial outputs (the
+    next sweep resumes it), a run not started yet does not start, and Ray's tasks are not killed before they
+    have written them (the fake Ray records the order of events)."""
+    from slam.config import load_config
+    from slam.runner import RunInterrupted, run_to_folder
+    from slam.sweep import interrupted, run_one
+    from slam.sweep.runs import RayEngine
+
+    specs = plan([f"synthetic={tiny_seq}"], ["lrslam"], 2, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
+    stop = tmp_path / "sw" / ".stop"
+
+    class TouchAt1:
+        def on_start(self, system):
+            pass
+
+        def on_frame(self, system, record):
+            if record.k == 1:
+                stop.touch()
+
+        def on_finish(self, *a):
+            pass
+
+        def close(self):
+            pass
+
+    with pytest.raises(RunInterrupted):
+        run_to_folder(load_config(specs[0].preset, specs[0].config_overrides()), specs[0].run_dir, progress=False,
+                      mesh=False, observers=[TouchAt1()], stop_file=stop)
+    assert interrupted(specs[0].run_dir)
+    import dataclasses
+
+    rec = run_one(dataclasses.replace(specs[1], stop_file=str(stop)))
+    assert rec["status"] == "interrupted" and not Path(specs[1].run_dir, "metrics.json").exists()
+
+    events = []
+
+    class FakeRay:
+        def wait(self, refs, num_returns, timeout=None):
+            events.append(("wait", stop.exists()))
+            return list(refs[:1]), []
+
+        def get(self, ref):
+            return {"run_dir": ref, "status": "interrupted"}
+
+        def cancel(self, ref, force=False):
+            events.append(("cancel", force))
+
+    stop.unlink()
+    engine = RayEngine.__new__(RayEngine)
+    engine.ray = FakeRay()
+    got = []
+    engine._stop({"a": specs[0]}, got.append, [dataclasses.replace(s, stop_file=str(stop)) for s in specs])
+    assert events == [("wait", True)] and got == [{"run_dir": "a", "status": "interrupted"}]
 
 
 def test_finished_run_with_another_config_is_not_reused(tiny_seq, tmp_path):
