@@ -13,3 +13,31 @@ def tiny_seq(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny_synth")
     generate(out, SynthConfig(frames=24, height=60, width=80, supersample=1))
     return out
+
+
+class EditedDataset:
+    """A dataset wrapper: frames ``no_depth`` have zero depth, frames ``blank`` zero depth and black colour (a
+    sensor that saw nothing), and the ground truth of frames ``bad_gt`` is NaN."""
+
+    def __init__(self, ds, no_depth=(), blank=(), bad_gt=()):
+        import torch
+
+        self.ds, self.no_depth, self.blank = ds, set(no_depth), set(blank)
+        self.timestamps, self.gt_mesh_path = ds.timestamps, ds.gt_mesh_path
+        gt = torch.as_tensor(ds.gt_poses).clone()
+        for i in bad_gt:
+            gt[i] = float("nan")
+        self.gt_poses = gt
+
+    def __len__(self):
+        return len(self.ds)
+
+    def __getitem__(self, i):
+        import torch
+
+        f = self.ds[i]
+        if i in self.no_depth or i in self.blank:
+            f.depth = torch.zeros_like(torch.as_tensor(f.depth))
+        if i in self.blank:
+            f.color = torch.zeros_like(torch.as_tensor(f.color))
+        return f

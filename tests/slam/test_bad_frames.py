@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from slam.config import load_config
+from tests.slam.conftest import EditedDataset
 
 FAST = ["data.max_frames=8", "tracking.iters=2", "tracking.pixels=100", "mapping.iters=2", "mapping.iters_first=3",
         "mapping.pixels=200", "rendering.n_stratified=6", "rendering.n_importance=2", "mapping.every_frame=2"]
@@ -82,33 +83,12 @@ def test_too_many_bad_frames_stop_the_run_after_writing_its_outputs(excerpt, tmp
     assert not m.get("partial") and m["num_frames"] == 8 and m["resumed_from"] == 3
 
 
-class _Edit:
-    """A dataset wrapper that empties the depth of some frames or invalidates some ground-truth poses."""
-
-    def __init__(self, ds, no_depth=(), bad_gt=()):
-        self.ds, self.no_depth = ds, set(no_depth)
-        self.timestamps, self.gt_mesh_path = ds.timestamps, ds.gt_mesh_path
-        gt = ds.gt_poses.clone()
-        for i in bad_gt:
-            gt[i] = float("nan")
-        self.gt_poses = gt
-
-    def __len__(self):
-        return len(self.ds)
-
-    def __getitem__(self, i):
-        f = self.ds[i]
-        if i in self.no_depth:
-            f.depth = torch.zeros_like(torch.as_tensor(f.depth))
-        return f
-
-
 def _system(tiny_seq, **edit):
     from slam.setup import load_data
     from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST])
-    return SLAM(cfg, _Edit(load_data(cfg), **edit))
+    return SLAM(cfg, EditedDataset(load_data(cfg), **edit))
 
 
 def test_frame_0_without_depth_starts_the_map_at_the_first_frame_with_depth(tiny_seq):

@@ -5,28 +5,11 @@ import torch
 
 from slam.config import load_config
 from slam.pose import matrix_to_pose, pose_to_matrix
+from tests.slam.conftest import EditedDataset
 
 FAST = ["data.max_frames=18", "tracking.iters=2", "tracking.pixels=200", "mapping.iters=3", "mapping.iters_first=20",
         "mapping.pixels=300", "rendering.n_stratified=8", "rendering.n_importance=4", "mapping.every_frame=1",
         "mapping.keyframe_every=1", "parallel=false"]
-
-
-class _Blank:
-    """A dataset wrapper whose frames ``blank`` have zero depth and black colour (a sensor that saw nothing)."""
-
-    def __init__(self, ds, blank=()):
-        self.ds, self.blank = ds, set(blank)
-        self.timestamps, self.gt_mesh_path, self.gt_poses = ds.timestamps, ds.gt_mesh_path, ds.gt_poses
-
-    def __len__(self):
-        return len(self.ds)
-
-    def __getitem__(self, i):
-        f = self.ds[i]
-        if i in self.blank:
-            f.depth = torch.zeros_like(torch.as_tensor(f.depth))
-            f.color = torch.zeros_like(torch.as_tensor(f.color))
-        return f
 
 
 def _system(tiny_seq, overrides=(), blank=()):
@@ -34,7 +17,7 @@ def _system(tiny_seq, overrides=(), blank=()):
     from slam.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, *overrides])
-    return SLAM(cfg, _Blank(load_data(cfg), blank))
+    return SLAM(cfg, EditedDataset(load_data(cfg), blank=blank))
 
 
 def _error_cm(system, k):
