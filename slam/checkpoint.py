@@ -195,7 +195,18 @@ def config_differences(a: dict, b: dict) -> list[str]:
 
 def restore(system, ckpt: dict) -> int:
     """Put a freshly built ``system`` (same config and data) into the checkpoint's state; returns the position of
-    the next frame to process."""
+    the next frame to process.
+
+    Raises:
+        SlamInputError: the data or the scene do not fit, or the run state misses a part (a damaged checkpoint)."""
+    try:
+        return _restore(system, ckpt)
+    except (KeyError, TypeError, IndexError) as exc:
+        raise SlamInputError(f"the checkpoint's run state is incomplete or damaged ({type(exc).__name__}: {exc}); "
+                             "resume from checkpoint.prev.pt, or run again without --resume") from None
+
+
+def _restore(system, ckpt: dict) -> int:
     run = ckpt["extra"]["run"]
     if run["fingerprint"] != fingerprint(system):
         raise SlamInputError(f"the data differ from the checkpointed run's ({run['fingerprint']} vs "

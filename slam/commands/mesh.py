@@ -68,6 +68,7 @@ def main(args) -> int:
     import numpy as np
     import torch
 
+    from slam.files import replacing
     from slam.frames import readable_depth
     from slam.mesher import Hull, extract_mesh, hull_points
 
@@ -119,6 +120,7 @@ def main(args) -> int:
                   file=sys.stderr)
         mesh = cull_mesh(mesh, poses.numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
     out = Path(args.out) if args.out else path.parent / f"mesh_{res:g}.ply"
-    mesh.export(out)
+    with replacing(out, "mesh") as tmp:
+        mesh.export(tmp)
     print(f"{len(mesh.vertices)} vertices, {len(mesh.faces)} faces -> {out}")
     return 0

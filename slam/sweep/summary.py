@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import statistics
 import time
 from pathlib import Path
+
+from slam.files import atomic_write_text
 from typing import Iterable, Sequence
 
 from slam.sweep.plan import _run_name
@@ -74,11 +75,9 @@ def summary_markdown(summary: dict) -> str:
 
 
 def write_summary(out: str | Path, summary: dict) -> None:
-    """``summary.json`` and ``summary.md`` in ``out``, each written to a temporary name and renamed."""
+    """``summary.json`` and ``summary.md`` in ``out``, each written durably (:mod:`slam.files`)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     for name, text in (("summary.json", json.dumps(summary, indent=2, default=str)),
                        ("summary.md", summary_markdown(summary))):
-        tmp = out / f".{name}.tmp"
-        tmp.write_text(text)
-        os.replace(tmp, out / name)
+        atomic_write_text(out / name, text, "sweep summary")

@@ -186,6 +186,12 @@ def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, caps
     assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a readable checkpoint" in err[0] and f"mv {prev} {ckpt}" in err[0]
+    payload = torch.load(prev, weights_only=True)
+    del payload["extra"]["run"]["guard"]  # readable, but a part of the run state is gone
+    torch.save(payload, ckpt)
+    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "run state is incomplete or damaged (KeyError: 'guard')" in err[0]
     prev.replace(ckpt)
     assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 0
     # a new run with another config started into the folder (it writes config.yaml first) and killed before its
