@@ -218,7 +218,7 @@ class SLAM:
         untrusted = k - 1 - last  # frames in a row before this one without a trusted pose
         n = cfg.tracking.relocalize_after
         if n and last >= 0 and untrusted >= n and (st.reloc_tried_at <= last or k - st.reloc_tried_at >= n):
-            best, found = self._relocalise(k, inp, anchor, dt, pred, untrusted)
+            best, found = self._relocalise(k, inp, anchor, dt, pred)
             if best is not None:
                 self._event(k, f"{lost}; relocalised from the {found} after {untrusted} untrusted frames "
                                "(loss history restarted)", relocalised=True)
@@ -228,8 +228,7 @@ class SLAM:
         self._event(k, f"{lost}, frame not mapped", lost=True)
         return res, False
 
-    def _relocalise(self, k: int, inp: TrackInput, anchor: torch.Tensor, dt: float, pred: torch.Tensor,
-                    untrusted: int):
+    def _relocalise(self, k: int, inp: TrackInput, anchor: torch.Tensor, dt: float, pred: torch.Tensor):
         """Relocalise frame ``k`` against the keyframes (read once the mapper is idle, so the same ones whatever
         the threads' timing). Returns ``(result or None, the start it came from)``."""
         self.state.reloc_tried_at = k
