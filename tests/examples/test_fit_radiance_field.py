@@ -3,8 +3,6 @@ reach), writes its metrics and renders, matches parameter budgets, and rejects b
 
 import importlib.util
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,9 +12,10 @@ SCRIPT = Path(__file__).resolve().parents[2] / "examples" / "fit_radiance_field.
 # about 25 s on one core, numba compilation included
 TINY = ["--dataset", "synthetic", "--size", "48x64", "--frames", "16", "--rays", "512", "--samples", "32",
         "--threads", "1", "--kind", "cp", "--budget", "100000"]
-# Measured 25.47 dB (seeds 1, 2: 25.70, 24.76). Below the bound: 1 step 12.8 dB, the mean training colour 19.2 dB,
-# and the same run with --background white (22.2 dB), which falls into fog near the cameras instead of geometry.
-PSNR_BOUND = 23.5
+# Measured 27.35 dB (seeds 1, 2: 27.53, 27.21; 2026-12-02, AMD EPYC, torch 2.13.0). Below the bound: 1 step
+# 17.4 dB, the mean training colour 19.2 dB, and about 22 dB for the fog near the cameras that a model which has not
+# found the geometry settles into (as the example did before its initial density was raised).
+PSNR_BOUND = 25.3
 KEYS = {"psnr", "ssim", "parameters", "seconds", "kind", "steps", "dataset", "image_size", "held_out", "date",
         "torch_version", "tdfields_version", "cpu"}
 
@@ -66,9 +65,11 @@ def test_compare_matches_budgets(script, tmp_path, capsys):
     (["--steps", "0"], "--steps must be >= 1"),
     (["--data", "/nonexistent/sequence", "--dataset", "tum"], "dataset folder not found"),
 ])
-def test_bad_input_is_one_line(args, message, tmp_path):
-    proc = subprocess.run([sys.executable, str(SCRIPT), *args, "--out", str(tmp_path)], capture_output=True,
-                          text=True, timeout=120)
-    assert proc.returncode != 0
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and message in lines[0] and "Traceback" not in proc.stderr, proc.stderr
+def test_bad_input_is_one_line(script, args, message, tmp_path, capsys):
+    # in this process (a subprocess per case cost 10 s of imports): SystemExit with one line is what Python prints
+    # as the whole of stderr, with no traceback
+    with pytest.raises(SystemExit) as info:
+        script.main([*args, "--out", str(tmp_path)])
+    text = info.value.code if isinstance(info.value.code, str) else capsys.readouterr().err
+    lines = text.strip().splitlines()
+    assert info.value.code != 0 and len(lines) == 1 and message in lines[0], text
