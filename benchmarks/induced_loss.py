@@ -117,12 +117,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     first, stop = map(int, args.gap.split(":"))
     out = Path(args.out)
-    data = out / f"{Path(args.data).name}"  # the folder name tells the TUM loader the camera (fr1)
+    (out / "runs").mkdir(parents=True, exist_ok=True)  # run folders and the data copy (git ignores runs/)
+    data = out / "runs" / f"{Path(args.data).name}"  # the folder name tells the TUM loader the camera (fr1)
     if not data.exists():
         blacked_out_copy(Path(args.data), data, first, stop)
     runs = []
     for seed in range(args.seeds):
-        runs.append(run_seed(args.config, data, out / f"s{seed}", seed, first, stop, args.overrides))
+        runs.append(run_seed(args.config, data, out / "runs" / f"s{seed}", seed, first, stop, args.overrides))
         print(json.dumps(runs[-1]), flush=True)
     import tdfields
     from slam.runtime import cpu_name
