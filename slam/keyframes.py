@@ -1,4 +1,4 @@
-"""Keyframe store and ESLAM's overlap-based mapping window (eslam-pipeline.md §5)."""
+"""Keyframe store and ESLAM's overlap-based mapping window (docs/slam.md, "The pipeline (as implemented)", Mapping)."""
 
 from __future__ import annotations
 

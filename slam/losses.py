@@ -1,4 +1,5 @@
-"""ESLAM's five losses (eslam-pipeline.md §3): three SDF regions, depth and colour, with named weights.
+"""ESLAM's five losses (docs/slam.md, "The pipeline (as implemented)", Losses): three SDF regions, depth and colour,
+with named weights.
 
 For a sample at depth ``z`` on a ray with measured depth ``D`` and predicted normalised SDF ``s`` (tanh output):
 

@@ -1,4 +1,5 @@
-"""Mapping (eslam-pipeline.md §5): optimise the scene (and, with BA, the window poses) on a keyframe window.
+"""Mapping (docs/slam.md, "The pipeline (as implemented)", Mapping): optimise the scene (and, with BA, the window poses)
+on a keyframe window.
 
 The optimiser is rebuilt at every call (Adam, default betas): decoders + beta, geometry and appearance fields
 at their own learning rates (x ``lr_first_factor`` on the first frame, which runs ``iters_first`` iterations).

@@ -1,5 +1,5 @@
-"""Mesh extraction (eslam-pipeline.md §6): marching cubes over the marching-cubes bound, SDF masked outside the
-scene box and outside a visibility hull, vertex colours from the RGB decoder.
+"""Mesh extraction (docs/slam.md, "The pipeline (as implemented)", Meshing): marching cubes over the marching-cubes
+bound, SDF masked outside the scene box and outside a visibility hull, vertex colours from the RGB decoder.
 
 The hull replaces ESLAM's Open3D TSDF-fusion step with something dependency-free: the convex hull of
 back-projected keyframe depth points (subsampled) and the camera centres, scaled by ``hull_scale`` (1.02) about

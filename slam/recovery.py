@@ -141,7 +141,8 @@ def recover(inp: TrackInput, res: TrackResult, prev: torch.Tensor, dt: float, st
     # a pose no check accepts is worse than the motion model's guess: keep the prediction, do not map
     res.pose = prediction.clone()
     res.iters = sum(r.iters for _, r in cands)
-    return res, False, f"tracking lost ({'; '.join(why)}); {len(cands) - 1} recovery attempts failed: predicted pose kept"
+    return res, False, (f"tracking lost ({'; '.join(why)}); {len(cands) - 1} recovery attempts failed: "
+                        "predicted pose kept")
 
 
 def nearest_keyframes(keyframes: list, anchor: torch.Tensor, n: int) -> list:

@@ -1,4 +1,5 @@
-"""Tracking (eslam-pipeline.md §4): optimise the current camera pose against the frozen map.
+"""Tracking (docs/slam.md, "The pipeline (as implemented)", Tracking): optimise the current camera pose against the
+frozen map.
 
 A fresh Adam (betas 0.5, 0.999) over the quaternion (``lr_r``) and translation (``lr_t``); every iteration draws
 new pixels; the loss at the pose *before* each step is recorded and the best one is returned (best-loss

@@ -2,7 +2,7 @@
 
 ``num(default, lo=..., hi=...)`` declares a numeric key's allowed values, ``choice(default, options)`` an
 enumerated one; :mod:`slam.config.load` checks every value against them as a config is read. Defaults are ESLAM's
-(eslam-pipeline.md) unless a field's comment says "ours".
+(docs/slam.md, "The pipeline (as implemented)") unless a field's comment says "ours".
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ def _weights(fs, center, tail, depth, color):
     return lambda: LossWeights(fs=fs, center=center, tail=tail, depth=depth, color=color)
 
 
-# the one definition of ESLAM's loss weights (eslam-pipeline.md §3); LossWeights itself lives with the losses
+# the one definition of ESLAM's loss weights (docs/slam.md, Losses); LossWeights itself lives with the losses
 TRACKING_WEIGHTS = _weights(10.0, 200.0, 50.0, 1.0, 5.0)
 MAPPING_WEIGHTS = _weights(5.0, 200.0, 10.0, 0.1, 5.0)
 

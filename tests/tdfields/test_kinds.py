@@ -14,7 +14,7 @@ from .conftest import BOX, SHAPE, make
 
 
 def formula(kind, n, C, k):
-    """The parameter counts of method.md, written out independently of the library."""
+    """The parameter counts of docs/tdfields.md, written out independently of the library."""
     nx, ny, nz = n
     k = k or 0
     return {
