@@ -17,12 +17,13 @@ def tiny_seq(tmp_path_factory):
 
 class EditedDataset:
     """A dataset wrapper: frames ``no_depth`` have zero depth, frames ``blank`` zero depth and black colour (a
-    sensor that saw nothing), and the ground truth of frames ``bad_gt`` is NaN."""
+    sensor that saw nothing), frames ``unreadable`` raise as a truncated file does, and the ground truth of frames
+    ``bad_gt`` is NaN."""
 
-    def __init__(self, ds, no_depth=(), blank=(), bad_gt=()):
+    def __init__(self, ds, no_depth=(), blank=(), bad_gt=(), unreadable=()):
         import torch
 
-        self.ds, self.no_depth, self.blank = ds, set(no_depth), set(blank)
+        self.ds, self.no_depth, self.blank, self.unreadable = ds, set(no_depth), set(blank), set(unreadable)
         self.timestamps, self.gt_mesh_path = ds.timestamps, ds.gt_mesh_path
         gt = torch.as_tensor(ds.gt_poses).clone()
         for i in bad_gt:
@@ -35,6 +36,10 @@ class EditedDataset:
     def __getitem__(self, i):
         import torch
 
+        if i in self.unreadable:
+            from slam.errors import SlamInputError
+
+            raise SlamInputError(f"frame {i}: depth PNG truncated (made so by the test)")
         f = self.ds[i]
         if i in self.no_depth or i in self.blank:
             f.depth = torch.zeros_like(torch.as_tensor(f.depth))

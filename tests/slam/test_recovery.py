@@ -37,6 +37,39 @@ def test_the_icp_start_after_a_frame_without_depth_chains_from_the_frame_it_regi
     s.close()
 
 
+def test_dropouts_unreadable_and_lost_frames_keep_the_trajectory_close_to_the_clean_run(tiny_seq, monkeypatch):
+    """Frames without depth (4, 9), an unreadable one (12) and a lost one (15: its tracking made implausible): every
+    gap is crossed from the right reference, and the ATE stays within 3 mm of the clean run's (measured: 0.68 against
+    0.59 cm; 29d2223, with the dropouts and the unreadable frame alone: 1.10 cm)."""
+    from slam.eval import ate
+    from slam.setup import load_data
+    from slam.system import SLAM
+
+    import slam.system
+
+    def ate_cm(s):
+        return 100 * ate(s.poses_matrix(), s.gt[: len(s.state.est)].numpy()).rmse
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, "tracking.iters=4"])
+    clean = SLAM(cfg, load_data(cfg))
+    clean.run(progress=False)
+    real = slam.system.recover
+
+    def lost_at_15(inp, res, prev, dt, starts, prediction, event):
+        if torch.equal(inp.depth, gapped.frames.get(15).depth):
+            res.pose = prediction.clone()
+            return res, False, "tracking lost (made to fail by the test)"
+        return real(inp, res, prev, dt, starts, prediction, event)
+
+    monkeypatch.setattr(slam.system, "recover", lost_at_15)
+    gapped = SLAM(cfg, EditedDataset(load_data(cfg), no_depth=[4, 9], unreadable=[12]))
+    gapped.run(progress=False)
+    assert [k for k, t in enumerate(gapped.state.trusted) if not t] == [4, 9, 12, 15]
+    assert ate_cm(gapped) < ate_cm(clean) + 0.3, (ate_cm(gapped), ate_cm(clean))
+    clean.close()
+    gapped.close()
+
+
 def test_relocalise_registers_against_the_nearest_keyframes_from_a_far_prediction(tiny_seq):
     from slam.recovery import TrackInput, relocalise
 

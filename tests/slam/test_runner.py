@@ -182,10 +182,12 @@ def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, caps
     assert "Resume with: lrslam run --resume" in capsys.readouterr().err
     ckpt, prev = out / "checkpoint.pt", previous_path(out / "checkpoint.pt")
     assert prev.is_file() and prev.read_bytes() != ckpt.read_bytes()  # periodic at 4, the stop's at 5
-    ckpt.write_bytes(ckpt.read_bytes()[: ckpt.stat().st_size // 2])  # a truncated copy
-    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "not a readable checkpoint" in err[0] and f"mv {prev} {ckpt}" in err[0]
+    for damaged in (ckpt.read_bytes()[: ckpt.stat().st_size // 2], b""):  # a truncated copy, an empty file
+        ckpt.write_bytes(damaged)
+        assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "not a readable checkpoint" in err[0] and f"mv {prev} {ckpt}" in err[0]
+        assert prev.is_file()  # refusing leaves the one before as it was
     payload = torch.load(prev, weights_only=True)
     del payload["extra"]["run"]["guard"]  # readable, but a part of the run state is gone
     torch.save(payload, ckpt)
