@@ -20,6 +20,22 @@ def _system(tiny_seq, overrides=(), blank=()):
     return SLAM(cfg, EditedDataset(load_data(cfg), blank=blank))
 
 
+def _make_lost(monkeypatch, depth_of_the_frame):
+    """Make the tracking of one frame implausible (a stand-in for a view the recent losses reject): the frame whose
+    depth is ``depth_of_the_frame()``."""
+    import slam.system
+
+    real = slam.system.recover
+
+    def failing(inp, res, prev, dt, starts, prediction, event):
+        if torch.equal(inp.depth, depth_of_the_frame()):
+            res.pose = prediction.clone()
+            return res, False, "tracking lost (made to fail by the test)"
+        return real(inp, res, prev, dt, starts, prediction, event)
+
+    monkeypatch.setattr(slam.system, "recover", failing)
+
+
 def _error_cm(system, k):
     est = pose_to_matrix(system.state.est[k])
     return 100 * float((est[:3, 3] - system.gt[k][:3, 3]).norm())
@@ -45,23 +61,13 @@ def test_dropouts_unreadable_and_lost_frames_keep_the_trajectory_close_to_the_cl
     from slam.setup import load_data
     from slam.system import SLAM
 
-    import slam.system
-
     def ate_cm(s):
         return 100 * ate(s.poses_matrix(), s.gt[: len(s.state.est)].numpy()).rmse
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, "tracking.iters=4"])
     clean = SLAM(cfg, load_data(cfg))
     clean.run(progress=False)
-    real = slam.system.recover
-
-    def lost_at_15(inp, res, prev, dt, starts, prediction, event):
-        if torch.equal(inp.depth, gapped.frames.get(15).depth):
-            res.pose = prediction.clone()
-            return res, False, "tracking lost (made to fail by the test)"
-        return real(inp, res, prev, dt, starts, prediction, event)
-
-    monkeypatch.setattr(slam.system, "recover", lost_at_15)
+    _make_lost(monkeypatch, lambda: gapped.frames.get(15).depth)
     gapped = SLAM(cfg, EditedDataset(load_data(cfg), no_depth=[4, 9], unreadable=[12]))
     gapped.run(progress=False)
     assert [k for k, t in enumerate(gapped.state.trusted) if not t] == [4, 9, 12, 15]
@@ -91,17 +97,7 @@ def test_a_run_of_untrusted_frames_ends_in_relocalisation_and_tracking_goes_on(t
     """Frames 8-13 saw nothing and frame 14's tracking is made to fail (a stand-in for a view the recent losses call
     implausible). After 6 untrusted frames frame 14 is relocalised against the keyframes, the loss history restarts
     from it, and it and the frames after it are trusted and mapped; with relocalisation off it stays lost."""
-    import slam.system
-
-    real = slam.system.recover
-
-    def failing_at_14(inp, res, prev, dt, starts, prediction, event):
-        if torch.equal(inp.depth, s.frames.get(14).depth):
-            res.pose = prediction.clone()
-            return res, False, "tracking lost (made to fail by the test)"
-        return real(inp, res, prev, dt, starts, prediction, event)
-
-    monkeypatch.setattr(slam.system, "recover", failing_at_14)
+    _make_lost(monkeypatch, lambda: s.frames.get(14).depth)
     for relocalize_after, trusted_14 in ((5, True), (0, False)):
         s = _system(tiny_seq, [f"tracking.relocalize_after={relocalize_after}", "data.prefetch=0"],
                     blank=range(8, 14))
