@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from slam.config.load import differing_keys, flatten
 from slam.errors import SlamInputError
 from slam.files import replacing
 from slam.keyframes import Keyframe
@@ -175,22 +176,11 @@ def load_run(path: Path, cfg=None) -> dict:
 RESUME_KEYS = ("device", "data.max_bad_fraction", "data.prefetch", "checkpoint_every", "checkpoint_interval_s")
 
 
-def _flat(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict) and k != "options":
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[prefix + k] = v
-    return out
-
-
 def config_differences(a: dict, b: dict) -> list[str]:
     """``"key: A vs B"`` for every dotted key whose value differs between two config dicts (outside
     :data:`RESUME_KEYS`)."""
-    fa, fb = _flat(a), _flat(b)
-    return [f"{k}: {fa.get(k)!r} vs {fb.get(k)!r}" for k in sorted(set(fa) | set(fb))
-            if k not in RESUME_KEYS and fa.get(k) != fb.get(k)]
+    fa, fb = flatten(a), flatten(b)
+    return [f"{k}: {fa.get(k)!r} vs {fb.get(k)!r}" for k in differing_keys(a, b, RESUME_KEYS)]
 
 
 def restore(system, ckpt: dict) -> int:

@@ -108,6 +108,18 @@ def write_frames(system, out: Path) -> None:
     atomic_write_text(out / "frames.csv", buf.getvalue(), "per-frame table")
 
 
+def finished_metrics(run_dir: str | Path) -> dict | None:
+    """The metrics of a finished run in ``run_dir``, or None (no ``metrics.json``, unreadable, or partial)."""
+    path = Path(run_dir) / "metrics.json"
+    try:
+        m = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(m, dict) or m.get("partial"):
+        return None
+    return m
+
+
 def write_metrics(metrics: dict, out: Path) -> None:
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2, default=str), "metrics")
 

@@ -64,7 +64,8 @@ def register(subparsers) -> None:
 
 def main(args) -> int:
     from slam.config import load_config
-    from slam.config.load import parse_overrides
+    from slam.config.load import flatten, parse_overrides
+    from slam.outputs import finished_metrics
     from slam.runner import RunInterrupted, resume_config, run_to_folder
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -73,11 +74,11 @@ def main(args) -> int:
         if given:
             raise SlamInputError(f"--resume continues a run with its own config and data; drop {', '.join(given)}")
         out = Path(args.resume)
-        over = _flatten(parse_overrides(args.overrides))
+        over = flatten(parse_overrides(args.overrides))
         if args.device is not None:
             over["device"] = args.device
         cfg = resume_config(out, over)
-        if _complete(out):
+        if finished_metrics(out) is not None:
             print(f"{out}: this run is complete; nothing to resume")
             return 0
     else:
@@ -111,25 +112,6 @@ def main(args) -> int:
         where = f"recording in {args.rerun} (view it with: rerun {args.rerun})" if args.rerun else "streamed"
         print(f"Rerun {where}; logging took {obs.log_s:.2f} s in this process ({share:.1f} % of the loop)")
     return 0
-
-
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[prefix + k] = v
-    return out
-
-
-def _complete(out: Path) -> bool:
-    """Whether ``out`` holds a finished run (a metrics.json not marked partial); a damaged one counts as not."""
-    try:
-        metrics = json.loads((out / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(metrics, dict) and not metrics.get("partial", False)
 
 
 def _viewer(args) -> list:

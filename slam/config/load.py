@@ -14,6 +14,7 @@ import yaml
 
 from slam.config.schema import NONNEG, REPRESENTATIONS, Config, Range
 from slam.errors import SlamInputError
+from slam.files import atomic_write_text
 from slam.losses import LossWeights
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
@@ -311,4 +312,23 @@ def load_config(preset: str | None = "synthetic", overrides: list[str] | dict | 
 
 
 def save_config(cfg: Config, path: str | Path) -> None:
-    Path(path).write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+    """Write ``cfg`` as YAML durably (:mod:`slam.files`: a full disk is one line naming the file)."""
+    atomic_write_text(Path(path), yaml.safe_dump(cfg.to_dict(), sort_keys=False), "config")
+
+
+def flatten(d: dict, prefix: str = "") -> dict:
+    """A nested config mapping as ``{"dotted.key": value}`` (an empty mapping stays one value)."""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and v:
+            out.update(flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def differing_keys(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> list[str]:
+    """The dotted keys, sorted, whose values differ between two config mappings (missing counts as None), except
+    those in ``ignore``."""
+    fa, fb = flatten(a), flatten(b)
+    return sorted(k for k in set(fa) | set(fb) if k not in ignore and fa.get(k) != fb.get(k))

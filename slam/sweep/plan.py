@@ -97,6 +97,7 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
             config key, an override of a key the sweep sets, a data folder that is missing or does not match.
     """
     from slam.config import REPRESENTATIONS, load_config, parse_overrides
+    from slam.config.load import flatten
 
     if not configs:
         raise SlamInputError("give at least one preset with --config")
@@ -111,7 +112,7 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
             raise SlamInputError(f"unknown representation '{rep}'; choose from {', '.join(REPRESENTATIONS)}")
     if len(set(representations)) != len(representations):
         raise SlamInputError(f"a representation is given twice: {' '.join(representations)}")
-    flat = _flatten(parse_overrides(list(overrides)))
+    flat = flatten(parse_overrides(list(overrides)))
     for key in _SWEEP_KEYS:
         if key in flat:
             flag = {"representation": "--representation", "seed": "--seeds", "threads": "--cpus-per-run",
@@ -161,16 +162,6 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
                 specs.append(RunSpec(preset, d, label, rep, seed, tuple(overrides),
                                      str(out / f"{folder}-{rep}-s{seed}"), mesh, threads))
     return specs
-
-
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict) and v:
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
 
 
 def _run_name(rec: dict) -> str:

@@ -16,23 +16,13 @@ from typing import Callable, Sequence
 
 from slam.errors import SlamInputError
 
-from slam.sweep.plan import _TRACEBACK_LINES, RunSpec, _flatten, _run_name
+from slam.config.load import differing_keys, flatten
+from slam.outputs import finished_metrics
+from slam.sweep.plan import _TRACEBACK_LINES, RunSpec, _run_name
 from slam.sweep.summary import summarize, write_summary
 
 
 # --------------------------------------------------------------------------------------------------- one run
-def finished_metrics(run_dir: str | Path) -> dict | None:
-    """The metrics of a finished run in ``run_dir``, or None (no ``metrics.json``, unreadable, or partial)."""
-    path = Path(run_dir) / "metrics.json"
-    try:
-        m = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(m, dict) or m.get("partial"):
-        return None
-    return m
-
-
 def interrupted(run_dir: str | Path) -> bool:
     """True for a run stopped by SIGINT / SIGTERM: partial metrics without an error, and its checkpoint."""
     try:
@@ -213,10 +203,10 @@ class RayEngine:
                 on_result(rec)
 
     def _stop(self, pending: dict, on_result, specs) -> None:
-        """Ctrl-C of the sweep: runs not started yet are cancelled; running ones are asked to stop through their
-        stop file, which they read after each frame (partial outputs and a checkpoint, so the next sweep resumes
-        them), and are waited for up to :data:`STOP_GRACE_S`; a second Ctrl-C, or the grace running out, kills
-        what is left (those runs go on from their last periodic checkpoint)."""
+        """Ctrl-C of the sweep: the stop file is touched; running runs read it after each frame (partial outputs
+        and a checkpoint, so the next sweep resumes them), runs not started yet return at once without starting,
+        and all are waited for up to :data:`STOP_GRACE_S`; a second Ctrl-C, or the grace running out, kills what
+        is left (those runs go on from their last periodic checkpoint)."""
         ray = self.ray
         # not ray.cancel(force=False): it raises KeyboardInterrupt inside a running task, which then writes nothing;
         # a queued task sees the stop file before its first frame and returns at once
@@ -304,8 +294,8 @@ def _check_same_config(spec: RunSpec, planned: dict) -> None:
         saved = yaml.safe_load(path.read_text()) or {}
     except (OSError, yaml.YAMLError):
         return
-    a, b = _flatten(saved), _flatten(planned)
-    diff = sorted(k for k in set(a) | set(b) if k != "threads" and a.get(k) != b.get(k))
+    a, b = flatten(saved), flatten(planned)
+    diff = differing_keys(saved, planned, ignore=("threads",))
     if diff:
         k = diff[0]
         raise SlamInputError(f"{spec.run_dir} holds a finished run with another config ({k}: {a.get(k)!r} there, "
