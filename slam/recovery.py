@@ -194,7 +194,7 @@ def _icp_against(kf, inp: TrackInput, guesses: list, keep: int = 3) -> torch.Ten
 
 
 def relocalise(inp: TrackInput, keyframes: list, anchor: torch.Tensor, dt: float, prediction: torch.Tensor,
-               positions: Callable[[int], int]) -> tuple[TrackResult | None, str, int]:
+               positions: Callable[[int], int]) -> tuple[TrackResult | None, str]:
     """Find the pose of a frame after a run of untrusted ones, against the keyframes nearest ``anchor``.
 
     Candidates: tracking from the ``prediction`` and from the ICP registration against each keyframe (started
@@ -212,7 +212,8 @@ def relocalise(inp: TrackInput, keyframes: list, anchor: torch.Tensor, dt: float
         positions: dataset frame number of a keyframe's position (for the event text).
 
     Returns:
-        ``(result or None, the start it came from, tracking iterations spent)``.
+        ``(result or None, the start it came from)``; the result's ``iters`` counts every tracking iteration
+        spent on the candidates.
     """
     cfg, guard = inp.cfg, inp.guard
     starts = {"prediction": (prediction, None)}
@@ -239,7 +240,7 @@ def relocalise(inp: TrackInput, keyframes: list, anchor: torch.Tensor, dt: float
 
     found = _best_on_common_pixels(inp, cands, acceptable, v, u)
     if found is None:
-        return None, "", spent
+        return None, ""
     name, best = found
     best.iters = spent
-    return best, name, spent
+    return best, name

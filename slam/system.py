@@ -236,7 +236,7 @@ class SLAM:
         kfs = list(self.keyframes.frames)
         if not kfs:
             return None, ""
-        best, found, _ = relocalise(inp, kfs, anchor, dt, pred, lambda j: int(self.indices[j]))
+        best, found = relocalise(inp, kfs, anchor, dt, pred, lambda j: int(self.indices[j]))
         if best is not None:
             self.guard.reset(best.loss)
         return best, found

@@ -85,7 +85,7 @@ def test_relocalise_registers_against_the_nearest_keyframes_from_a_far_predictio
     inp = TrackInput(s.scene, frame.color, frame.depth, s.intr, s.cfg, s.gen, s.guard)
     far = s.gt[9].clone()
     far[:3, 3] += torch.tensor([0.12, -0.05, 0.08])  # 15 cm off: tracking alone does not get back from here
-    best, name, _ = relocalise(inp, list(s.keyframes.frames), s.state.est[5], 4 / 30, matrix_to_pose(far),
+    best, name = relocalise(inp, list(s.keyframes.frames), s.state.est[5], 4 / 30, matrix_to_pose(far),
                                lambda j: j)
     assert best is not None and name.startswith("ICP against the keyframe of frame "), name
     err = 100 * float((pose_to_matrix(best.pose)[:3, 3] - s.gt[9][:3, 3]).norm())
