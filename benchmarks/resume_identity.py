@@ -26,25 +26,16 @@ sys.path.insert(0, str(ROOT))
 SHARED = Path(os.environ.get("LRSLAM_SHARED_DATA", ROOT.parent / "shared" / "data"))
 
 
-class SigintAt:
-    """Observer: SIGINT to this process after frame ``k`` (the run's own handler then stops after that frame)."""
+def sigint_at(k: int):
+    """An observer sending SIGINT to this process after frame ``k`` (the run's own handler stops after it)."""
+    from slam.observers import Observer
 
-    def __init__(self, k: int):
-        self.k = k
-        self.pending = None
+    class SigintAt(Observer):
+        def on_frame(self, system, rec):
+            if rec.k == k:
+                os.kill(os.getpid(), signal.SIGINT)
 
-    def on_start(self, system):
-        pass
-
-    def on_frame(self, system, rec):
-        if rec.k == self.k:
-            os.kill(os.getpid(), signal.SIGINT)
-
-    def on_finish(self, system, metrics, mesh=None):
-        pass
-
-    def close(self):
-        pass
+    return SigintAt()
 
 
 def _sha(path: Path) -> str:
@@ -64,7 +55,7 @@ def pair(preset: str, data: Path, seed: int, parallel: bool, at: int, out: Path)
     m = run_to_folder(cfg, full, progress=False, mesh=False)
     t_full = time.perf_counter() - t0
     try:
-        run_to_folder(cfg, cut, progress=False, mesh=False, observers=[SigintAt(at)])
+        run_to_folder(cfg, cut, progress=False, mesh=False, observers=[sigint_at(at)])
         raise SystemExit(f"{tag}: the SIGINT after frame {at} did not stop the run")
     except RunInterrupted:
         pass

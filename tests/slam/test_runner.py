@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from slam.observers import Observer
 from tests.slam.conftest import TINY
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -125,25 +126,15 @@ INPROC = TINY[1:] + ["data.max_frames=10"]  # synthetic maps frames 0, 4, 8 and 
 # call of frame 4 is still pending (lag 4) while frames 5-7 are tracked
 
 
-class _SignalAt:
+class _SignalAt(Observer):
     """An observer that sends this process SIGINT after frame ``k``, as a user's Ctrl-C would."""
 
-    def __init__(self, k: int, times: int = 1):
-        self.k, self.times = k, times
-
-    def on_start(self, system):
-        pass
+    def __init__(self, k: int):
+        self.k = k
 
     def on_frame(self, system, rec):
         if rec.k == self.k:
-            for _ in range(self.times):
-                os.kill(os.getpid(), signal.SIGINT)
-
-    def on_finish(self, system, metrics, mesh=None):
-        pass
-
-    def close(self):
-        pass
+            os.kill(os.getpid(), signal.SIGINT)
 
 
 def _traj(out: Path) -> str:

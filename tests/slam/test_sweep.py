@@ -230,19 +230,12 @@ def test_a_stopped_sweep_leaves_its_running_runs_resumable(tiny_seq, tmp_path):
     specs = plan([f"synthetic={tiny_seq}"], ["lrslam"], 2, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
     stop = tmp_path / "sw" / ".stop"
 
-    class TouchAt1:
-        def on_start(self, system):
-            pass
+    from slam.observers import Observer
 
+    class TouchAt1(Observer):
         def on_frame(self, system, record):
             if record.k == 1:
                 stop.touch()
-
-        def on_finish(self, *a):
-            pass
-
-        def close(self):
-            pass
 
     with pytest.raises(RunInterrupted):
         run_to_folder(load_config(specs[0].preset, specs[0].config_overrides()), specs[0].run_dir, progress=False,
