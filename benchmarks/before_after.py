@@ -73,7 +73,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     runs = [run_variant(v, out, r) for r in range(args.repeats) for v in variants]
     sys.path.insert(0, str(ROOT))
-    from slam.runtime import cpu_name
+    from slam.engine.runtime import cpu_name
 
     stamp = {"date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "cpu": cpu_name(), "repeats": args.repeats}
     rows = []

@@ -3,7 +3,7 @@ over seeds: frames lost, recovered and relocalised, and the ATE before, across a
 
 The modified copy links every file of the source except the blacked-out frames, whose colour and depth are written
 as valid all-zero PNGs of the same size (a sensor that saw nothing: the loader reads them, the loop finds no depth).
-Each run is ``lrslam run`` (through :func:`slam.runner.run_to_folder`); ATE is aligned once on the whole trajectory,
+Each run is ``lrslam run`` (through :func:`slam.run.runner.run_to_folder`); ATE is aligned once on the whole trajectory,
 then its RMSE is split into the frames before the gap and those after it. Writes ``induced_loss.json`` (every seed's
 values, mean ± std) and prints a table.
 
@@ -75,7 +75,7 @@ def split_ate(traj: Path, gt: Path, first: int, stop: int) -> dict:
 
 def run_seed(preset: str, data: Path, out: Path, seed: int, first: int, stop: int, extra: list[str]) -> dict:
     from slam.config import load_config
-    from slam.runner import run_to_folder
+    from slam.run.runner import run_to_folder
 
     cfg = load_config(preset, [f"data.path={data}", f"seed={seed}", *extra])
     t0 = time.perf_counter()
@@ -126,7 +126,7 @@ def main(argv=None) -> int:
         runs.append(run_seed(args.config, data, out / "runs" / f"s{seed}", seed, first, stop, args.overrides))
         print(json.dumps(runs[-1]), flush=True)
     import tdfields
-    from slam.runtime import cpu_name
+    from slam.engine.runtime import cpu_name
 
     doc = {"date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "version": tdfields.__version__,
            "cpu": cpu_name(), "config": args.config, "data": args.data, "gap": [first, stop],

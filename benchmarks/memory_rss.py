@@ -2,7 +2,7 @@
 store's bytes, for the default keyframe storage and the options that bound it.
 
 After the first 100 frames a run's memory should grow only with what it keeps, mostly its keyframe store (one keyframe per
-``keyframe_every`` mapped frames, ``slam.keyframes.bytes_per_keyframe`` each). The script records, per setting,
+``keyframe_every`` mapped frames, ``slam.engine.keyframes.bytes_per_keyframe`` each). The script records, per setting,
 RSS (``/proc/self/status`` VmRSS), the keyframe count and the store's bytes, fits RSS growth after frame 100
 against the store's growth, and reports the ATE of each setting (the bound's cost in accuracy).
 
@@ -45,11 +45,11 @@ def run_setting(name: str, data: Path, frames: int, every: int) -> dict:
     import numpy as np
 
     from slam.config import load_config
-    from slam.keyframes import bytes_per_keyframe
-    from slam.observers import Observer
-    from slam.outputs import trajectory_metrics
-    from slam.setup import load_data
-    from slam.system import SLAM
+    from slam.engine.keyframes import bytes_per_keyframe
+    from slam.engine.observers import Observer
+    from slam.run.outputs import trajectory_metrics
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={data}", f"data.max_frames={frames}", *SETTINGS[name]])
     series = []

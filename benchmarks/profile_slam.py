@@ -78,10 +78,10 @@ def profile_one(preset: str, representation: str, warm_frames: int, repeats: int
     import torch
 
     from slam.config import load_config
-    from slam.mapper import map_frame
-    from slam.setup import load_data
-    from slam.system import SLAM
-    from slam.tracker import track_frame
+    from slam.engine.mapper import map_frame
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+    from slam.engine.tracker import track_frame
 
     cfg = load_config(preset, [f"representation={representation}", f"data.max_frames={warm_frames + 1}",
                                *overrides])
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     import torch
 
     import tdfields
-    from slam.runtime import cpu_name
+    from slam.engine.runtime import cpu_name
     from tdfields import kernels
 
     rows = []

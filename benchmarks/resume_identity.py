@@ -28,7 +28,7 @@ SHARED = Path(os.environ.get("LRSLAM_SHARED_DATA", ROOT.parent / "shared" / "dat
 
 def sigint_at(k: int):
     """An observer sending SIGINT to this process after frame ``k`` (the run's own handler stops after it)."""
-    from slam.observers import Observer
+    from slam.engine.observers import Observer
 
     class SigintAt(Observer):
         def on_frame(self, system, rec):
@@ -44,9 +44,9 @@ def _sha(path: Path) -> str:
 
 def pair(preset: str, data: Path, seed: int, parallel: bool, at: int, out: Path) -> dict:
     """One uninterrupted run and one interrupted after frame ``at`` then resumed; their hashes and metrics."""
-    from slam.checkpoint import load_run
+    from slam.run.checkpoint import load_run
     from slam.config import load_config
-    from slam.runner import RunInterrupted, run_to_folder
+    from slam.run.runner import RunInterrupted, run_to_folder
 
     cfg = load_config(preset, [f"data.path={data}", f"seed={seed}", f"parallel={str(parallel).lower()}"])
     tag = f"{data.name}-s{seed}-{'par' if parallel else 'seq'}"
@@ -84,7 +84,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     import tdfields
-    from slam.runtime import cpu_name
+    from slam.engine.runtime import cpu_name
 
     runs = []
     for mode in args.modes:

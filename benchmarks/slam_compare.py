@@ -1,7 +1,7 @@
 """Side-by-side SLAM comparison: lrslam vs eslam vs CP/CP (and other representations) on the same sequences,
 over seeds, as the paper reports it (mean ± std over 5 runs).
 
-Runs ``slam.runner.run_to_folder`` for every (sequence, representation, backend, seed) with identical settings and
+Runs ``slam.run.runner.run_to_folder`` for every (sequence, representation, backend, seed) with identical settings and
 writes ``slam_compare.json`` (every run's values, per seed), ``slam_compare.csv`` (one row per run) and
 ``slam_compare.md`` (mean ± std per configuration), stamped with date, library version, CPU and thread count.
 Parameter counts come from ``tdfields.report`` via each run's ``metrics.json``.
@@ -160,7 +160,7 @@ def main(argv=None) -> int:
     import tdfields
     from slam.config import REPRESENTATIONS, load_config
     from slam.errors import SlamInputError
-    from slam.runtime import cpu_name
+    from slam.engine.runtime import cpu_name
 
     bad = [r for r in args.representations if r not in REPRESENTATIONS]
     if bad:

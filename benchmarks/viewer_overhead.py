@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", type=int, default=0,
                     help="also run N plain/logged pairs at the same time (paired under the same load)")
     args = ap.parse_args(argv)
-    from slam.runtime import cpu_name
+    from slam.engine.runtime import cpu_name
     import tdfields
 
     out = Path(args.out)

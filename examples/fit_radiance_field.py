@@ -291,7 +291,7 @@ def run_kind(kind: str, views: dict, args, out: Path) -> dict:
     rays = {k: views[v][train_ids].reshape(-1, *views[v].shape[3:]).to(args.device) for k, v in keys.items()}
     seconds = train(model, rays, args, kind)
     metrics = evaluate(model, views, test_ids, args, out)
-    from slam.runtime import cpu_name
+    from slam.engine.runtime import cpu_name
 
     rep = tdfields.report(model)
     k = views["intrinsics"]

@@ -10,7 +10,7 @@ from slam.errors import SlamInputError
 
 if TYPE_CHECKING:
     from slam.config import Config
-    from slam.scene import SceneModel
+    from slam.model.scene import SceneModel
 
 
 def register(subparsers) -> None:
@@ -47,7 +47,7 @@ def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
 
     import tdfields
     from slam.config import config_from_dict
-    from slam.scene import SceneModel
+    from slam.model.scene import SceneModel
 
     path = Path(path)
     try:
@@ -69,8 +69,8 @@ def main(args) -> int:
     import torch
 
     from slam.files import replacing
-    from slam.frames import readable_depth
-    from slam.mesher import Hull, extract_mesh, hull_points
+    from slam.engine.frames import readable_depth
+    from slam.model.mesher import Hull, extract_mesh, hull_points
 
     path = Path(args.checkpoint)
     if path.is_dir():
@@ -85,7 +85,7 @@ def main(args) -> int:
     intr = Intrinsics(**extra["intrinsics"])
     ds = None
     try:
-        from slam.setup import load_data
+        from slam.engine.setup import load_data
 
         ds = load_data(cfg)
     except SlamInputError:

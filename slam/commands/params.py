@@ -31,7 +31,7 @@ def _m(n: int) -> str:
 def main(args) -> int:
     import tdfields
     from slam.config import load_config
-    from slam.scene import SceneModel, parameter_counts, scene_aabb
+    from slam.model.scene import SceneModel, parameter_counts, scene_aabb
 
     cfg = load_config(args.config, args.overrides)
     if cfg.scene.bound == "auto":

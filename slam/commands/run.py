@@ -65,8 +65,8 @@ def register(subparsers) -> None:
 def main(args) -> int:
     from slam.config import load_config
     from slam.config.load import flatten, parse_overrides
-    from slam.outputs import finished_metrics
-    from slam.runner import RunInterrupted, resume_config, run_to_folder
+    from slam.run.outputs import finished_metrics
+    from slam.run.runner import RunInterrupted, resume_config, run_to_folder
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if args.resume is not None:
@@ -118,7 +118,7 @@ def _viewer(args) -> list:
     """The Rerun observer the flags ask for (checked before the run starts), or none."""
     if args.rerun is None and args.rerun_connect is None:
         return []
-    from slam.viewer import RerunObserver, check_recording_path, require_rerun
+    from slam.run.viewer import RerunObserver, check_recording_path, require_rerun
 
     require_rerun()
     save = check_recording_path(args.rerun) if args.rerun is not None else None

@@ -15,7 +15,7 @@ import yaml
 from slam.config.schema import NONNEG, REPRESENTATIONS, Config, Range
 from slam.errors import SlamInputError
 from slam.files import atomic_write_text
-from slam.losses import LossWeights
+from slam.core.losses import LossWeights
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from slam.losses import LossWeights
+from slam.core.losses import LossWeights
 
 REPRESENTATIONS = ("lrslam", "eslam", "cp_cp", "sa_sa", "sa_cp", "vm_sa")
 FIELD_KINDS = ("cp", "dense_grid", "six_axis", "triplane", "vector_matrix")  # tdfields.KINDS
@@ -149,14 +149,14 @@ class TrackingConfig:
     lr_r: float = num(0.001, **RATE)
     ignore_edge: list = num(lambda: [75, 75], **NONNEG)
     # the starting pose: ESLAM's constant velocity (const_speed), the previous pose, or depth ICP from the
-    # previous frame started at the constant-velocity guess (ours; slam/odometry.py)
+    # previous frame started at the constant-velocity guess (ours; slam/core/odometry.py)
     init: str = choice("const_speed", ("const_speed", "previous", "icp"))
     outlier_factor: float = num(10.0, **POSITIVE)
     # ours: stop once `patience` iterations found no loss below the best by `min_improvement` (0: ESLAM's fixed count)
     patience: int = num(0, **NONNEG)
     min_iters: int = num(1, **COUNT)
     min_improvement: float = num(0.0, lo=0, hi=1, hi_open=True)
-    # ours (slam/tracking_guard.py): a result is implausible when its loss is over lost_loss_factor x the recent
+    # ours (slam/engine/tracking_guard.py): a result is implausible when its loss is over lost_loss_factor x the recent
     # median, fewer than lost_min_inliers of its rays are inliers, or it moved faster than max_speed (m/s) /
     # max_angular_speed (deg/s); then `recovery` tracks again from several starts. 0 turns a check off.
     lost_loss_factor: float = num(4.0, **NONNEG)
@@ -164,7 +164,7 @@ class TrackingConfig:
     max_speed: float = num(3.0, lo=0, hi=1000.0)
     max_angular_speed: float = num(360.0, lo=0, hi=100000.0)
     recovery: bool = True
-    # ours (slam/recovery.py): after this many frames in a row without a trusted pose (lost, unreadable or
+    # ours (slam/engine/recovery.py): after this many frames in a row without a trusted pose (lost, unreadable or
     # without depth), relocalise against the relocalize_keyframes keyframes nearest the last trusted pose
     # (0: never)
     relocalize_after: int = num(5, lo=0, hi=BIG)
@@ -230,8 +230,8 @@ class Config:
     seed: int = num(0, lo=0, hi=2**32 - 1 - 7919)  # numpy seeds are 32-bit; the mapper draws from seed + 7919
     device: str = "cpu"
     threads: int = num(0, lo=0, hi=1024)  # 0 = leave torch's default
-    keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.runtime)
-    parallel: bool = False  # mapping on a worker thread beside the tracker (slam.map_worker)
+    keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.engine.runtime)
+    parallel: bool = False  # mapping on a worker thread beside the tracker (slam.engine.map_worker)
     checkpoint_every: int = num(0, **NONNEG)  # frames between checkpoints (0: by time, checkpoint_interval_s)
     checkpoint_interval_s: float = num(60.0, **POSITIVE)  # at most this much work is lost (checkpoint_every: 0)
     representation: str = choice("lrslam", REPRESENTATIONS)

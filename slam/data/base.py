@@ -12,7 +12,7 @@ import torch.nn.functional as F
 
 from slam.data.types import Frame, Intrinsics
 from slam.errors import SlamInputError
-from slam.geometry import check_rigid
+from slam.core.geometry import check_rigid
 
 __all__ = ["RGBDDataset", "read_color", "read_depth", "undistort_grid"]
 

@@ -40,7 +40,7 @@ from slam.data.calibration import (
 )
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
-from slam.geometry import poses_from_tum
+from slam.core.geometry import poses_from_tum
 
 __all__ = ["TUMDataset", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "read_tum_list"]
 

@@ -125,7 +125,7 @@ class TUMWriter:
         self._write("associations.txt", [f"{t:.6f} {f} {td:.6f} {fd}"
                                          for (t, f), (td, fd) in zip(self._rgb, self._depth)])
         if self._poses:
-            from slam.geometry import poses_to_tum
+            from slam.core.geometry import poses_to_tum
 
             rows = poses_to_tum(np.stack([p for _, p in self._poses]))
             self._write("groundtruth.txt", ["# ground truth trajectory", f"# file: '{name}'",

@@ -3,7 +3,7 @@
 TUM format: one pose per line, ``timestamp tx ty tz qx qy qz qw`` (camera-to-world, metres, Hamilton
 quaternion with the real part last), ``#`` starts a comment. ``evo`` and the TUM benchmark tools read and
 write exactly this, so trajectories written here can be checked with them and vice versa. The row conversions
-and the rigidity check live in :mod:`slam.geometry` (the loaders use them too) and are re-exported here.
+and the rigidity check live in :mod:`slam.core.geometry` (the loaders use them too) and are re-exported here.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from slam.errors import SlamInputError
-from slam.geometry import check_rigid, poses_from_tum, poses_to_tum
+from slam.core.geometry import check_rigid, poses_from_tum, poses_to_tum
 
 __all__ = [
     "read_tum_trajectory",

@@ -146,7 +146,7 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
             probe = RunSpec(preset, d, preset, rep, 0, tuple(overrides), "", mesh, threads)
             cfg = load_config(preset, probe.config_overrides())
             if check_data and (preset, d) not in checked:
-                from slam.setup import load_data
+                from slam.engine.setup import load_data
 
                 load_data(cfg)
                 checked.add((preset, d))

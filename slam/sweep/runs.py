@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 from slam.errors import SlamInputError
 
 from slam.config.load import differing_keys, flatten
-from slam.outputs import finished_metrics
+from slam.run.outputs import finished_metrics
 from slam.sweep.plan import _TRACEBACK_LINES, RunSpec, _run_name
 from slam.sweep.summary import summarize, write_summary
 
@@ -47,7 +47,7 @@ def run_one(spec: RunSpec) -> dict:
     The full traceback of a failure also goes to ``run_dir/error.txt``.
     """
     from slam.config import load_config
-    from slam.runner import RunInterrupted, resume_config, run_to_folder
+    from slam.run.runner import RunInterrupted, resume_config, run_to_folder
 
     t0 = time.perf_counter()
     if spec.stop_file and Path(spec.stop_file).exists():

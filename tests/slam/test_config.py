@@ -82,7 +82,7 @@ def _numeric_keys(cls=None, prefix=""):
     from typing import get_type_hints
 
     from slam.config import Config
-    from slam.losses import LossWeights
+    from slam.core.losses import LossWeights
 
     cls = cls or Config
     hints = get_type_hints(cls)
@@ -96,7 +96,7 @@ def _numeric_keys(cls=None, prefix=""):
 
 
 def test_every_numeric_key_declares_a_range():
-    from slam.losses import LossWeights
+    from slam.core.losses import LossWeights
 
     missing = [k for k, f in _numeric_keys() if "range" not in f.metadata and not k.split(".")[-1] in
                LossWeights.__dataclass_fields__]

@@ -159,17 +159,17 @@ def test_summary_single_run_and_no_ate():
 # --------------------------------------------------------------------------------------------------- running
 def test_serial_sweep_records_a_failing_run_and_reuses_finished_ones(tiny_seq, tmp_path, monkeypatch):
     """Engine-independent: a run that raises is recorded, the others finish; a second pass reruns nothing."""
-    import slam.runner
+    import slam.run.runner
 
     specs = plan([f"synthetic={tiny_seq}"], ["lrslam"], 2, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
-    real = slam.runner.run_to_folder
+    real = slam.run.runner.run_to_folder
 
     def flaky(cfg, out, **kw):
         if cfg.seed == 1:
             raise FloatingPointError("seed 1 diverged")
         return real(cfg, out, **kw)
 
-    monkeypatch.setattr(slam.runner, "run_to_folder", flaky)
+    monkeypatch.setattr(slam.run.runner, "run_to_folder", flaky)
     s = execute(specs, SerialEngine(), out=tmp_path / "sw", log=lambda m: None)
     ok, bad = s["runs"]
     assert ok["status"] == "ok" and ok["seed"] == 0 and ok["num_frames"] == 4 and ok["ate_rmse_m"] > 0
@@ -178,7 +178,7 @@ def test_serial_sweep_records_a_failing_run_and_reuses_finished_ones(tiny_seq, t
     on_disk = json.loads((tmp_path / "sw" / "summary.json").read_text())
     assert on_disk["engine"] == "serial" and [r["status"] for r in on_disk["runs"]] == ["ok", "failed"]
 
-    monkeypatch.setattr(slam.runner, "run_to_folder", real)
+    monkeypatch.setattr(slam.run.runner, "run_to_folder", real)
     mtime = (Path(ok["run_dir"]) / "metrics.json").stat().st_mtime_ns
     s2 = execute(specs, SerialEngine(), out=tmp_path / "sw", log=lambda m: None)
     assert [r["status"] for r in s2["runs"]] == ["ok", "ok"]
@@ -193,8 +193,8 @@ def test_interrupted_run_goes_on_from_its_checkpoint(tiny_seq, tmp_path):
     import signal
 
     from slam.config import load_config
-    from slam.observers import Observer
-    from slam.runner import RunInterrupted, run_to_folder
+    from slam.engine.observers import Observer
+    from slam.run.runner import RunInterrupted, run_to_folder
     from slam.sweep import interrupted
 
     (spec,) = plan([f"synthetic={tiny_seq}"], ["lrslam"], 1, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
@@ -223,14 +223,14 @@ def test_a_stopped_sweep_leaves_its_running_runs_resumable(tiny_seq, tmp_path):
     next sweep resumes it), a run not started yet does not start, and Ray's tasks are not killed before they
     have written them (the fake Ray records the order of events)."""
     from slam.config import load_config
-    from slam.runner import RunInterrupted, run_to_folder
+    from slam.run.runner import RunInterrupted, run_to_folder
     from slam.sweep import interrupted, run_one
     from slam.sweep.runs import RayEngine
 
     specs = plan([f"synthetic={tiny_seq}"], ["lrslam"], 2, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
     stop = tmp_path / "sw" / ".stop"
 
-    from slam.observers import Observer
+    from slam.engine.observers import Observer
 
     class TouchAt1(Observer):
         def on_frame(self, system, record):

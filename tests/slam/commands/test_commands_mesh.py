@@ -7,7 +7,7 @@ import tdfields
 from slam.commands.mesh import load_run_checkpoint
 from slam.config import load_config
 from slam.errors import SlamInputError
-from slam.scene import SceneModel, scene_aabb
+from slam.model.scene import SceneModel, scene_aabb
 
 
 def _save_run(data, path, keyframes=(0,)):
@@ -95,7 +95,7 @@ def test_mesh_without_the_data_uses_the_hull_stored_in_the_checkpoint(tiny_seq, 
     import trimesh
 
     from slam.cli import main
-    from slam.runner import run_to_folder
+    from slam.run.runner import run_to_folder
     from tests.slam.conftest import TINY
 
     data = tmp_path / "data"

@@ -133,7 +133,7 @@ def test_precedence_options_over_calibration_file_over_folder_name(tmp_path):
     assert ds.intrinsics.fx == 60.0 and ds.depth_scale == 500.0 and ds.calibration_file == root / "other.yaml"
     # from a config: data.options is passed to the loader as it is
     from slam.config import load_config
-    from slam.setup import load_data
+    from slam.engine.setup import load_data
 
     cfg = load_config("tum", [f"data.path={root}", "data.options.intrinsics={fx: 45, fy: 45, cx: 31.5, cy: 23.5}",
                               "data.options.crop_size=null", "data.options.crop_edge=0",

@@ -1,0 +1,173 @@
+"""Keyframe store and ESLAM's overlap-based mapping window (docs/slam.md, "The pipeline (as implemented)", Mapping)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from slam.core.pose import pose_to_matrix
+
+
+@dataclass
+class Keyframe:
+    """One stored keyframe: ``color [H, W, 3]`` and ``depth [H, W]`` (metres) as stored, its estimated pose as
+    ``[7]`` (q, t) camera-to-world (refined by BA). Read the images with :meth:`rgb` / :meth:`metres`, which
+    return float32 whatever the storage."""
+
+    index: int
+    color: torch.Tensor
+    depth: torch.Tensor
+    pose: torch.Tensor
+
+    def rgb(self) -> torch.Tensor:
+        """``[H, W, 3]`` float32 RGB in [0, 1]."""
+        return self.color.float() / 255.0 if self.color.dtype == torch.uint8 else self.color.float()
+
+    def metres(self) -> torch.Tensor:
+        """``[H, W]`` float32 depth in metres."""
+        return self.depth.float()
+
+    @property
+    def nbytes(self) -> int:
+        return self.color.numel() * self.color.element_size() + self.depth.numel() * self.depth.element_size()
+
+
+STORAGES = ("float32", "compact")
+
+
+def bytes_per_keyframe(height: int, width: int, storage: str = "float32") -> int:
+    """Image bytes one keyframe holds: float32 colour and depth (16 bytes a pixel), or ``compact``: 8-bit colour
+    and float16 depth (5 bytes a pixel)."""
+    return height * width * (16 if storage == "float32" else 5)
+
+
+@dataclass
+class KeyframeStore:
+    """Ordered list of keyframes (by frame index).
+
+    Args:
+        storage: ``float32`` keeps the images as loaded; ``compact`` stores colour as 8-bit (an error of at most
+            half a grey level) and depth as float16 (relative error <= 2^-11, 2 mm at 4 m): 3.2x less memory.
+        max_keyframes: 0 keeps every keyframe; otherwise, past this count, the most redundant one is dropped (the
+            keyframe, other than the first and the last two, whose pose is closest to its predecessor's:
+            translation in metres plus 0.5 m per radian of rotation), so memory stays bounded on long sequences.
+    """
+
+    frames: list[Keyframe] = field(default_factory=list)
+    storage: str = "float32"
+    max_keyframes: int = 0
+    dropped: int = 0
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def add(self, kf: Keyframe) -> None:
+        if self.storage == "compact":
+            kf = Keyframe(kf.index, (kf.rgb() * 255.0).round().clamp(0, 255).to(torch.uint8),
+                          kf.metres().to(torch.float16), kf.pose)
+        self.frames.append(kf)
+        if self.max_keyframes and len(self.frames) > self.max_keyframes:
+            self.frames.pop(self._most_redundant())
+            self.dropped += 1
+
+    def _most_redundant(self) -> int:
+        T = keyframe_matrices(self.poses())
+        best, best_d = 1, float("inf")
+        for i in range(1, len(self.frames) - 2):
+            a, b = T[i - 1], T[i]
+            rel = a[:3, :3].T @ b[:3, :3]
+            angle = float(torch.arccos(((rel.trace() - 1) / 2).clamp(-1.0, 1.0)))
+            d = float((a[:3, 3] - b[:3, 3]).norm()) + 0.5 * angle
+            if d < best_d:
+                best, best_d = i, d
+        return best
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the stored images."""
+        return sum(kf.nbytes for kf in self.frames)
+
+    def poses(self) -> torch.Tensor:
+        """``[K, 7]`` current estimated poses."""
+        return torch.stack([k.pose for k in self.frames]) if self.frames else torch.zeros(0, 7)
+
+
+def overlapping_keyframes(
+    depth: torch.Tensor,
+    c2w: torch.Tensor,
+    keyframe_c2w: torch.Tensor,
+    fx: float, fy: float, cx: float, cy: float, height: int, width: int,
+    n_pixels: int = 50,
+    n_samples: int = 8,
+    margin: int = 20,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Which keyframes see points of the current frame (ESLAM 'overlap' selection, steps 1-3).
+
+    Casts ``n_pixels`` random valid-depth pixels, puts ``n_samples`` evenly spaced points on each in
+    ``[0.8 D, D + 0.5]``, projects them into every keyframe and reports the keyframes that have at least one
+    point in front of the camera and inside the image with a ``margin`` px border.
+
+    Args:
+        depth: ``[H, W]`` current depth (metres, 0 invalid).
+        c2w: ``[4, 4]`` current camera-to-world.
+        keyframe_c2w: ``[K, 4, 4]`` keyframe camera-to-world (OpenCV).
+
+    Returns:
+        ``[K]`` bool mask.
+    """
+    K = keyframe_c2w.shape[0]
+    valid = torch.nonzero(depth > 0)
+    if K == 0 or valid.shape[0] == 0:
+        return torch.zeros(K, dtype=torch.bool)
+    pick = torch.randint(0, valid.shape[0], (n_pixels,), generator=generator)
+    vu = valid[pick]
+    v = vu[:, 0].to(depth.dtype)
+    u = vu[:, 1].to(depth.dtype)
+    D = depth[vu[:, 0], vu[:, 1]]
+    t = torch.linspace(0.0, 1.0, n_samples, dtype=depth.dtype)
+    z = 0.8 * D[:, None] + (D[:, None] + 0.5 - 0.8 * D[:, None]) * t  # [P, S]
+    dirs = torch.stack(((u - cx) / fx, (v - cy) / fy, torch.ones_like(u)), -1)
+    pts_cam = dirs[:, None, :] * z[..., None]  # [P, S, 3]
+    pts = pts_cam.reshape(-1, 3) @ c2w[:3, :3].T + c2w[:3, 3]
+    w2c = torch.linalg.inv(keyframe_c2w)  # [K, 4, 4]
+    pc = torch.einsum("kij,pj->kpi", w2c[:, :3, :3], pts) + w2c[:, None, :3, 3]
+    zc = pc[..., 2]
+    zs = torch.where(zc.abs() < 1e-5, torch.full_like(zc, 1e-5), zc)
+    uu = fx * pc[..., 0] / zs + cx
+    vv = fy * pc[..., 1] / zs + cy
+    inside = (uu > margin) & (uu < width - margin) & (vv > margin) & (vv < height - margin) & (zc > 0)
+    return inside.any(-1)
+
+
+def select_window(
+    n_keyframes: int,
+    overlap: torch.Tensor,
+    window_size: int = 20,
+    generator: torch.Generator | None = None,
+) -> list[int]:
+    """ESLAM's window (steps 4-5): up to ``window_size - 1`` random overlapping keyframes among all but the
+    last two, plus the last two keyframes. The caller adds the current frame.
+
+    Args:
+        n_keyframes: number of stored keyframes.
+        overlap: ``[n_keyframes]`` bool (only entries before the last two are used).
+        window_size: ESLAM's ``mapping_window_size`` W.
+
+    Returns:
+        Sorted keyframe positions (indices into the store).
+    """
+    older = max(n_keyframes - 2, 0)
+    cand = [i for i in range(older) if bool(overlap[i])]
+    if len(cand) > window_size - 1:
+        perm = torch.randperm(len(cand), generator=generator)[: window_size - 1]
+        cand = [cand[int(i)] for i in perm]
+    chosen = set(cand) | set(range(older, n_keyframes))
+    return sorted(chosen)
+
+
+def keyframe_matrices(poses: torch.Tensor) -> torch.Tensor:
+    """``[K, 7]`` -> ``[K, 4, 4]`` (no gradient)."""
+    with torch.no_grad():
+        return pose_to_matrix(poses)

@@ -1,0 +1,162 @@
+"""Where mapping runs: inline after each mapped frame (sequential), or on a worker thread beside the tracker
+(parallel), with one schedule that makes both deterministic for a seed.
+
+The schedule: a mapping call for frame ``m`` is submitted right after ``m`` is tracked; the tracker tracks frame
+``j`` against the map exactly as the call of the latest mapped frame ``m <= j - lag`` left it, and only then
+applies that call's results (its BA-refined pose of ``m``). Sequential mode is ``lag = 1``, run inline: every
+frame is tracked against the map of the frame before it (ESLAM's effective behaviour). Parallel mode uses
+``lag = max(every_frame, 2)``: the call of frame ``m`` runs while frames ``m + 1 ... m + lag - 1`` are tracked
+against the previous map, and the tracker waits for it only at ``m + lag`` (the first call, the warm-up, is
+always waited for). What the tracker sees is fixed by
+the frame numbers, never by timing, so a parallel run repeats exactly too.
+
+The tracker never sees a half-written map: in parallel mode it tracks on its own copy of the scene, which is
+overwritten only from a snapshot the mapper took at the end of a call (a ``state_dict`` copy, a few MB), while
+the mapper thread is already on to the next call or idle. Only the worker touches ``scene`` and the keyframes
+while a call runs; anything else that reads them (a checkpoint, a preview mesh) first waits with
+:meth:`MapWorker.wait_idle`.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import copy
+import threading
+import time
+from dataclasses import dataclass
+
+import torch
+
+from slam.engine.keyframes import Keyframe
+from slam.engine.mapper import MapResult, map_frame
+
+
+@dataclass
+class MapJob:
+    """One mapping call: frame position ``k``, its images ``[H, W, 3]`` / ``[H, W]`` on the device, its tracked
+    pose ``[7]``, whether it is the first-frame warm-up and whether it becomes a keyframe afterwards."""
+
+    k: int
+    color: torch.Tensor
+    depth: torch.Tensor
+    pose: torch.Tensor
+    first: bool
+    keyframe: bool
+
+
+@dataclass
+class MapDone:
+    """A finished call: the job, the mapper's result, wall seconds, and (parallel mode) the map it left."""
+
+    job: MapJob
+    result: MapResult
+    seconds: float
+    snapshot: dict | None = None
+
+
+class MapWorker:
+    """Runs mapping calls on ``scene`` (the map every output is written from) and keeps ``track_scene`` (what
+    the tracker reads) in step with it by the schedule above.
+
+    Args:
+        scene: the :class:`slam.model.scene.SceneModel` mapping optimises.
+        keyframes: the :class:`slam.engine.keyframes.KeyframeStore` (touched only by mapping calls).
+        cfg, intrinsics: the run's config and working-image intrinsics.
+        generator: CPU generator for the mapper's pixel and window draws.
+        parallel: run calls on a worker thread (else inline).
+    """
+
+    def __init__(self, scene, keyframes, cfg, intrinsics, generator: torch.Generator, parallel: bool):
+        self.scene = scene
+        self.keyframes = keyframes
+        self.cfg = cfg
+        self.intr = intrinsics
+        self.gen = generator
+        self.parallel = parallel
+        self.lag = max(cfg.mapping.every_frame, 2) if parallel else 1
+        self.track_scene = copy.deepcopy(scene) if parallel else scene
+        self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map") if parallel else None
+        self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
+        self._applied_any = False
+        self._abort = threading.Event()  # set by close(abort=True): a call in progress stops at its next iteration
+        self.wait_s = 0.0  # time the tracker spent waiting for the mapper
+        self.snapshot_s = 0.0  # time spent taking and loading snapshots
+
+    # ---------------------------------------------------------------------------------------------- calls
+    def _run(self, job: MapJob) -> MapDone:
+        t0 = time.perf_counter()
+        res = map_frame(self.scene, job.k, job.color, job.depth, job.pose, self.intr, self.keyframes, self.cfg,
+                        self.gen, first=job.first, should_stop=self._abort.is_set)
+        pose = res.pose if (res.ok and job.k > 0) else job.pose
+        if job.keyframe and res.ok:
+            self.keyframes.add(Keyframe(job.k, job.color.cpu(), job.depth.cpu(), pose.cpu().clone()))
+        snap = None
+        if self.parallel:
+            t1 = time.perf_counter()
+            snap = {name: t.detach().clone() for name, t in self.scene.state_dict().items()}
+            self.snapshot_s += time.perf_counter() - t1
+        return MapDone(job, res, time.perf_counter() - t0, snap)
+
+    def submit(self, job: MapJob) -> None:
+        """Queue a call (run it now, in sequential mode)."""
+        if self.parallel:
+            self._queue.append((job.k, self._pool.submit(self._run, job)))
+        else:
+            self._queue.append((job.k, self._run(job)))
+
+    def _collect(self, upto: int | None) -> list[MapDone]:
+        ready = [(k, f) for k, f in self._queue if upto is None or k <= upto]
+        self._queue = [(k, f) for k, f in self._queue if not (upto is None or k <= upto)]
+        out = []
+        for _, f in ready:
+            if isinstance(f, MapDone):
+                out.append(f)
+            else:
+                t0 = time.perf_counter()
+                out.append(f.result())
+                self.wait_s += time.perf_counter() - t0
+        if self.parallel and out:
+            t0 = time.perf_counter()
+            with torch.no_grad():
+                self.track_scene.load_state_dict(out[-1].snapshot)
+            self.snapshot_s += time.perf_counter() - t0
+            for d in out:
+                d.snapshot = None
+        return out
+
+    def sync(self, j: int) -> list[MapDone]:
+        """Before tracking frame ``j``: finish the calls of frames ``<= j - lag`` (waiting if needed), make the
+        tracker's map the one the last of them left, and return them in order so the loop can apply their
+        results. The first call (the warm-up) is always waited for: nothing is tracked against an empty map."""
+        upto = j - self.lag
+        if not self._applied_any and self._queue:
+            upto = max(upto, self._queue[0][0])
+        out = self._collect(upto)
+        self._applied_any = self._applied_any or bool(out)
+        return out
+
+    def drain(self) -> list[MapDone]:
+        """Finish every queued call; the tracker's map then equals the mapper's. Returns the calls finished."""
+        out = self._collect(None)
+        if self.parallel:
+            with torch.no_grad():
+                self.track_scene.load_state_dict(self.scene.state_dict())
+        return out
+
+    def wait_idle(self) -> None:
+        """Wait until no call is running (their results stay queued for the schedule): before anything outside the
+        worker reads ``scene`` or the keyframes (a checkpoint, a preview mesh)."""
+        for _, f in self._queue:
+            if not isinstance(f, MapDone):
+                t0 = time.perf_counter()
+                f.result()
+                self.wait_s += time.perf_counter() - t0
+
+    def close(self, abort: bool = False) -> None:
+        """Shut the worker down; ``abort``: end a call in progress at its next iteration and do not wait for it
+        (its work is lost; the map is then unusable, so nothing may be saved from it afterwards)."""
+        if self._pool is not None:
+            if abort:
+                self._abort.set()
+            self._pool.shutdown(wait=not abort, cancel_futures=True)
+            self._pool = None

@@ -1,0 +1,147 @@
+"""Tracking (docs/slam.md, "The pipeline (as implemented)", Tracking): optimise the current camera pose against the
+frozen map.
+
+A fresh Adam (betas 0.5, 0.999) over the quaternion (``lr_r``) and translation (``lr_t``); every iteration draws
+new pixels; the loss at the pose *before* each step is recorded and the best one is returned (best-loss
+selection). ESLAM runs a fixed number of iterations; with ``tracking.patience = N`` (ours) the call stops once
+``N`` iterations in a row found no loss lower than the best by ``min_improvement`` (relative), after at least
+``min_iters``. The scene is held in :func:`tdfields.frozen` for the duration, so backward reaches
+only the pose and the fields may cache what they derive from the map for this call (never across calls). A
+non-finite loss ends the optimisation; if no finite loss was seen the caller falls back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+import tdfields
+from slam.config import Config
+from slam.core.losses import total_loss, tracking_inliers
+from slam.core.optim import VectorAdam
+from slam.core.pose import pose_to_matrix, standardize_quaternion
+from slam.core.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
+
+
+@dataclass
+class TrackResult:
+    """``pose``: ``[7]`` best-loss pose; ``loss``: its loss (NaN if none was finite); ``ok``; ``message``: why it
+    stopped early; ``iters``: iterations run; ``inliers``: share of the rays kept by the outlier rule at the
+    best iteration."""
+
+    pose: torch.Tensor
+    loss: float
+    ok: bool
+    message: str = ""
+    iters: int = 0
+    inliers: float = float("nan")
+
+
+def _loss_at(scene, color, depth, intrinsics, c2w, cfg: Config, v, u, generator, perturb: bool):
+    """The tracking loss of the pixels ``(v, u)`` for camera-to-world ``c2w`` ``[4, 4]`` (differentiable in it).
+
+    Returns ``(loss, inlier share, message)``; ``loss`` is None (and ``message`` says why) when too few rays are
+    left or the rendering is not finite."""
+    tc = cfg.tracking
+    D = depth[v, u]
+    C = color[v, u]
+    dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                intrinsics.cy)
+    origins, dirs = camera_rays(c2w, dirs_cam)
+    keep = (D > 0) & (ray_box_exit(origins, dirs, scene.aabb) >= D)
+    if int(keep.sum()) < 10:
+        return None, 0.0, "too few rays with valid depth inside the scene box"
+    origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
+    out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, scene.beta, cfg.scene.truncation,
+                      cfg.rendering.n_stratified, cfg.rendering.n_importance, scene.aabb, perturb, generator,
+                      cfg.rendering.color_cutoff)
+    if not bool(torch.isfinite(out.depth).all()):
+        return None, 0.0, "non-finite rendered depth"
+    inl = tracking_inliers(out.depth, D, tc.outlier_factor)
+    if int(inl.sum()) < 10:
+        return None, 0.0, "too few inlier rays"
+    loss, _ = total_loss(out.sdf[inl], out.z[inl], out.depth[inl], out.color[inl], D[inl], C[inl],
+                         cfg.scene.truncation, tc.weights)
+    return loss, float(inl.float().mean()), ""
+
+
+def track_frame(
+    scene,
+    color: torch.Tensor,
+    depth: torch.Tensor,
+    intrinsics,
+    init_pose: torch.Tensor,
+    cfg: Config,
+    generator: torch.Generator,
+    iters: int | None = None,
+    patience: int | None = None,
+) -> TrackResult:
+    """Estimate the camera-to-world pose of one frame.
+
+    Args:
+        scene: :class:`slam.model.scene.SceneModel` (frozen here).
+        color: ``[H, W, 3]`` RGB in [0, 1]; depth: ``[H, W]`` metres (0 invalid); on the scene's device.
+        intrinsics: ``slam.data.Intrinsics`` of the working image.
+        init_pose: ``[7]`` (q, t) starting pose.
+        cfg: resolved config (``tracking``, ``rendering``, ``scene.truncation``).
+        generator: CPU generator for pixel and sample draws.
+        iters, patience: override ``tracking.iters`` / ``tracking.patience`` (recovery attempts).
+
+    Returns:
+        :class:`TrackResult` with the best-loss pose.
+    """
+    tc = cfg.tracking
+    iters = tc.iters if iters is None else iters
+    patience = tc.patience if patience is None else patience
+    device = depth.device
+    H, W = depth.shape
+    pose = init_pose.clone().to(device).requires_grad_(True)  # [qw qx qy qz tx ty tz]
+    lrs = torch.tensor([tc.lr_r] * 4 + [tc.lr_t] * 3, dtype=pose.dtype, device=device)
+    opt = VectorAdam(pose, lrs, betas=(0.5, 0.999))
+    best_loss = float("inf")
+    best_pose = None
+    best_inliers = float("nan")
+    message = ""
+    it = since_best = 0
+    with tdfields.frozen(scene):  # no scene gradients; Six-axis caches its planes for this call only
+        for it in range(1, iters + 1):
+            v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
+            loss, inliers, message = _loss_at(scene, color, depth, intrinsics, pose_to_matrix(pose),
+                                              cfg, v.to(device), u.to(device), generator, cfg.rendering.perturb)
+            if loss is None:
+                break
+            value = float(loss.detach())
+            if not torch.isfinite(loss):
+                message = "non-finite tracking loss"
+                break
+            since_best = 0 if value < best_loss * (1.0 - tc.min_improvement) else since_best + 1
+            if value < best_loss:
+                best_loss = value
+                best_pose = pose.detach().clone()
+                best_inliers = inliers
+            if patience and it >= tc.min_iters and since_best >= patience:
+                break  # converged: no better pose for `patience` iterations (the best one is returned)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if not bool(torch.isfinite(pose).all()):
+                message = "non-finite pose update"
+                break
+    if best_pose is None or not bool(torch.isfinite(best_pose).all()):
+        return TrackResult(init_pose.clone(), float("nan"), False, message or "no finite pose", it)
+    q_n = best_pose[:4] / best_pose[:4].norm().clamp(min=1e-12)
+    best_pose = torch.cat((standardize_quaternion(q_n), best_pose[4:]))
+    return TrackResult(best_pose.cpu(), best_loss, True, message, it, best_inliers)
+
+
+@torch.no_grad()
+def evaluate_pose(scene, color, depth, intrinsics, pose: torch.Tensor, cfg: Config, v, u) -> tuple[float, float]:
+    """``(loss, inlier share)`` of the pose ``[7]`` on the given pixels without jitter (a fair comparison of
+    candidate poses: same pixels, same samples). ``(inf, 0)`` when too few rays remain."""
+    with tdfields.frozen(scene):
+        loss, inliers, _ = _loss_at(scene, color, depth, intrinsics, pose_to_matrix(pose.to(depth.device)), cfg,
+                                    v.to(depth.device), u.to(depth.device), None, False)
+    if loss is None or not bool(torch.isfinite(loss)):
+        return float("inf"), 0.0
+    return float(loss), inliers

@@ -1,0 +1,195 @@
+"""Mesh extraction (docs/slam.md, "The pipeline (as implemented)", Meshing): marching cubes over the marching-cubes
+bound, SDF masked outside the scene box and outside a visibility hull, vertex colours from the RGB decoder.
+
+The hull replaces ESLAM's Open3D TSDF-fusion step with something dependency-free: the convex hull of
+back-projected keyframe depth points (subsampled) and the camera centres, scaled by ``hull_scale`` (1.02) about
+its centroid. Containment is a vectorised half-space test on the hull's facet equations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import trimesh
+from scipy.spatial import ConvexHull, QhullError
+from skimage import measure
+
+import tdfields
+
+
+def hull_points(depths: list[torch.Tensor], c2ws: list[torch.Tensor], intrinsics, per_frame: int = 2000,
+                generator: torch.Generator | None = None) -> np.ndarray:
+    """World points for the visibility hull: ``per_frame`` random valid depth pixels per frame + camera centres.
+
+    Args:
+        depths: ``[H, W]`` metres per frame; c2ws: ``[4, 4]`` camera-to-world per frame (OpenCV).
+
+    Returns:
+        ``[P, 3]`` float64 world points.
+    """
+    pts = []
+    for D, T in zip(depths, c2ws):
+        D = D.detach().cpu().float()
+        T = T.detach().cpu().float()
+        valid = torch.nonzero(D > 0)
+        if valid.shape[0] > 0:
+            pick = torch.randint(0, valid.shape[0], (min(per_frame, valid.shape[0]),), generator=generator)
+            vu = valid[pick]
+            z = D[vu[:, 0], vu[:, 1]]
+            x = (vu[:, 1].float() - intrinsics.cx) / intrinsics.fx * z
+            y = (vu[:, 0].float() - intrinsics.cy) / intrinsics.fy * z
+            cam = torch.stack((x, y, z), -1)
+            pts.append((cam @ T[:3, :3].T + T[:3, 3]).numpy())
+        pts.append(T[:3, 3].numpy()[None])
+    return np.concatenate(pts, 0).astype(np.float64)
+
+
+class Hull:
+    """Convex hull of ``points [P, 3]`` (metres) scaled by ``scale`` about their centroid.
+
+    A point ``q`` is inside when ``n . p + d <= 1e-9`` for every facet ``(n, d)`` of the unscaled hull, with
+    ``p = c + (q - c) / scale`` and ``c`` the centroid. Meshing asks this for whole grid lines at once
+    (:meth:`x_intervals`). When qhull cannot build a hull (fewer than 4 points, all coplanar) every point is
+    inside: no culling.
+    """
+
+    def __init__(self, points: np.ndarray, scale: float = 1.02):
+        self.centroid = points.mean(0)
+        self.scale = scale
+        try:
+            self.equations = ConvexHull(points).equations  # [F, 4], inside: n.x + d <= 0
+        except (QhullError, ValueError):
+            self.equations = None
+
+    def x_intervals(self, ys: np.ndarray, zs: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+        """The hull's extent along every grid line parallel to x: ``(lo, hi)`` of shape ``[ny, nz]``.
+
+        A point ``(x, y_j, z_k)`` is inside exactly when ``lo[j, k] <= x <= hi[j, k]`` (``lo > hi`` where the line
+        misses the hull). The hull is convex, so each facet bounds ``x`` on a whole line at once: ``O(ny nz F)``
+        work for the grid instead of ``O(nx ny nz F)``. Meshing the synthetic room spent 87 % of its time testing
+        every grid point against every facet (5.0 of 5.7 s) before.
+        """
+        ny, nz = len(ys), len(zs)
+        lo = np.full(ny * nz, -np.inf)
+        hi = np.full(ny * nz, np.inf)
+        if self.equations is None:
+            return lo.reshape(ny, nz), hi.reshape(ny, nz)
+        n, d = self.equations[:, :3], self.equations[:, 3]
+        c, s = self.centroid, self.scale
+        yy, zz = np.meshgrid(ys, zs, indexing="ij")
+        py = c[1] + (yy.ravel() - c[1]) / s
+        pz = c[2] + (zz.ravel() - c[2]) / s
+        # n . p + d with p = c + (q - c) / s and q = (t, y, z) is a t + b on each line
+        a = n[:, 0] / s
+        base = n[:, 0] * (c[0] - c[0] / s) + d
+        pos, neg, flat = a > 0, a < 0, a == 0
+        chunk = max(1, (1 << 22) // len(n))
+        for start in range(0, ny * nz, chunk):
+            sl = slice(start, start + chunk)
+            b = py[sl, None] * n[:, 1] + pz[sl, None] * n[:, 2] + base
+            bound = (tol - b) / np.where(flat, 1.0, a)
+            if pos.any():
+                hi[sl] = bound[:, pos].min(1)
+            if neg.any():
+                lo[sl] = bound[:, neg].max(1)
+            if flat.any():
+                missed = (b[:, flat] > tol).any(1)
+                lo[sl][missed], hi[sl][missed] = np.inf, -np.inf
+        return lo.reshape(ny, nz), hi.reshape(ny, nz)
+
+
+@torch.no_grad()
+def extract_mesh(scene, bound, resolution: float, batch: int = 500000, hull: Hull | None = None,
+                 device: str | torch.device = "cpu") -> trimesh.Trimesh:
+    """Marching cubes of the scene's SDF.
+
+    Args:
+        scene: :class:`slam.model.scene.SceneModel`.
+        bound: ``(3, 2)`` marching-cubes bound in metres (padded by 0.05 on every side).
+        resolution: grid spacing in metres; ``n_axis = round((extent + 0.1) / resolution)``.
+        batch: points per SDF query.
+        hull: visibility hull (points outside get SDF -1), or None.
+
+    Returns:
+        Coloured ``trimesh.Trimesh`` in world metres (empty when no zero crossing exists).
+    """
+    with tdfields.frozen(scene):  # the map is fixed while meshing: Six-axis composes its planes once
+        return _extract(scene, bound, resolution, batch, hull, device)
+
+
+def _extract(scene, bound, resolution, batch, hull, device) -> trimesh.Trimesh:
+    b = np.asarray(torch.as_tensor(bound, dtype=torch.float64).tolist())
+    lo = b[:, 0] - 0.05
+    hi = b[:, 1] + 0.05
+    n = [max(int(round((hi[a] - lo[a]) / resolution)), 2) for a in range(3)]
+    axes = [np.linspace(lo[a], hi[a], n[a]) for a in range(3)]
+    spacing = tuple((hi[a] - lo[a]) / (n[a] - 1) for a in range(3))
+    aabb = scene.aabb.detach().cpu().numpy().astype(np.float64)
+    sdf = np.empty(n[0] * n[1] * n[2], np.float32)
+    # iterate x-slabs so memory stays at one batch of points
+    slab = max(1, batch // (n[1] * n[2]))
+    chunk = min(batch, 65536)
+    yy, zz = np.meshgrid(axes[1], axes[2], indexing="ij")
+    lines = hull.x_intervals(axes[1], axes[2]) if hull is not None else None
+    for s in range(0, n[0], slab):
+        xs = axes[0][s:s + slab]
+        pts = np.stack(np.broadcast_arrays(xs[:, None, None], yy[None], zz[None]), -1).reshape(-1, 3)
+        inside = ((pts >= aabb[:, 0]) & (pts <= aabb[:, 1])).all(1)
+        if lines is not None:
+            x = xs[:, None, None]
+            inside &= ((lines[0][None] <= x) & (x <= lines[1][None])).reshape(-1)
+        vals = np.full(len(pts), -1.0, np.float32)  # outside the box or the hull: SDF -1 (not queried)
+        idx = np.nonzero(inside)[0]
+        for c in range(0, len(idx), chunk):
+            q = torch.from_numpy(pts[idx[c:c + chunk]]).float().to(device)
+            vals[idx[c:c + chunk]] = scene.sdf(q).float().cpu().numpy()
+        sdf[s * n[1] * n[2]: (s + len(xs)) * n[1] * n[2]] = vals
+    vol = sdf.reshape(n)
+    if not (vol.min() < 0 < vol.max()):
+        return trimesh.Trimesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), np.int64), process=False)
+    verts, faces, _, _ = measure.marching_cubes(vol, level=0.0, spacing=spacing, gradient_direction="ascent")
+    verts = verts + lo
+    colors = []
+    for s in range(0, len(verts), batch):
+        v = torch.from_numpy(verts[s:s + batch]).float().to(device)
+        colors.append(scene.rgb(v).clamp(0, 1).cpu().numpy())
+    rgb = (np.concatenate(colors, 0) * 255).round().astype(np.uint8)
+    rgba = np.concatenate((rgb, np.full((len(rgb), 1), 255, np.uint8)), 1)
+    return trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=rgba, process=False)
+
+
+def run_hull_points(system) -> np.ndarray:
+    """``[P, 3]`` world points of a run's visibility hull: back-projected keyframe depth and the keyframes' camera
+    centres (stored in the checkpoint, so ``lrslam mesh`` needs no data). ``system``: a :class:`slam.engine.system.SLAM`."""
+    kf_c2w = [torch.from_numpy(T) for T in system.keyframe_poses()]
+    return hull_points([kf.metres() for kf in system.keyframes.frames], kf_c2w, system.intr,
+                       system.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(system.cfg.seed))
+
+
+def run_mesh(system, resolution: float | None = None, cull: bool | None = None) -> trimesh.Trimesh:
+    """A run's mesh with its config's meshing settings, from the map the tracker reads (mid-run: the latest one the
+    schedule has handed over; at the end: the final map): marching cubes inside the visibility hull, then (unless
+    ``cull`` is False) culled with every processed frame's estimated pose, and depth where the config asks for the
+    depth test; unreadable frames do not count as views."""
+    from slam.eval import cull_mesh
+
+    mcfg = system.cfg.meshing
+    system.mapper.wait_idle()  # parallel mode: the keyframes (hull) are the mapper's while a call runs
+    pts = run_hull_points(system)
+    hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
+    # the tracker's copy of the map: the loop's thread owns it (after finish() it equals the mapper's scene)
+    scene = system.mapper.track_scene
+    mesh = extract_mesh(scene, system.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, system.device)
+    if not (mcfg.cull if cull is None else cull) or not len(mesh.faces):
+        return mesh
+    poses = system.poses_matrix().copy()
+    depths = None
+    if mcfg.cull_depth_test:
+        depths = []
+        for k in range(len(poses)):
+            d = system._depth_or_none(k)
+            if d is None:
+                poses[k] = np.nan
+                d = np.zeros((system.intr.height, system.intr.width), np.float32)
+            depths.append(np.asarray(d, dtype=np.float32))
+    return cull_mesh(mesh, poses, system.intr, depths=depths, truncation=system.cfg.scene.truncation)

@@ -1,0 +1,176 @@
+"""System-level tests on a tiny generated synthetic sequence: robustness, determinism, the e2e CLI run."""
+
+import json
+
+import pytest
+import torch
+
+from slam.config import load_config
+from slam.errors import SlamInputError
+
+from tests.slam.conftest import TINY
+
+
+def _system(tiny_seq, extra=()):
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *extra])
+    return SLAM(cfg, load_data(cfg))
+
+
+class _Holes:
+    """Dataset wrapper whose frame ``bad`` has no valid depth."""
+
+    def __init__(self, ds, bad):
+        self.ds, self.bad = ds, bad
+        self.gt_poses, self.timestamps, self.gt_mesh_path = ds.gt_poses, ds.timestamps, ds.gt_mesh_path
+
+    def __len__(self):
+        return len(self.ds)
+
+    def __getitem__(self, i):
+        f = self.ds[i]
+        if i == self.bad:
+            f.depth = torch.zeros_like(torch.as_tensor(f.depth))
+        return f
+
+
+def test_invalid_depth_frame_is_skipped(tiny_seq):
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY])
+    s = SLAM(cfg, _Holes(load_data(cfg), 4))
+    s.run(progress=False)
+    assert [e["frame"] for e in s.state.events] == [4]
+    assert all(torch.isfinite(p).all() for p in s.state.est)
+    assert all(torch.isfinite(p).all() for p in s.scene.parameters())
+    assert len(s.state.est) == 6
+
+
+def test_nan_tracking_falls_back_to_constant_velocity(tiny_seq, monkeypatch):
+    import slam.engine.system as system
+    from slam.core.pose import constant_velocity
+    from slam.engine.tracker import TrackResult
+
+    real = system.track_frame
+    calls = {"n": 0}
+
+    def flaky(scene, color, depth, intr, init, cfg, gen):
+        calls["n"] += 1
+        if calls["n"] == 3:  # frame 3
+            return TrackResult(init.clone(), float("nan"), False, "non-finite tracking loss")
+        return real(scene, color, depth, intr, init, cfg, gen)
+
+    monkeypatch.setattr(system, "track_frame", flaky)
+    s = _system(tiny_seq)
+    s.run(progress=False)
+    assert any(e["frame"] == 3 and "constant-velocity" in e["event"] for e in s.state.events)
+    assert torch.allclose(s.state.est[3], constant_velocity(s.state.est[2], s.state.est[1]))
+
+
+def test_tracker_returns_init_on_nan_loss(tiny_seq):
+    from slam.engine.tracker import track_frame
+
+    s = _system(tiny_seq)
+    with torch.no_grad():
+        for p in s.scene.fields.parameters():
+            p.fill_(float("nan"))
+    f = s.ds[1]
+    init = torch.tensor([1.0, 0, 0, 0, 0, 0, 0])
+    res = track_frame(s.scene, torch.as_tensor(f.color), torch.as_tensor(f.depth), s.intr, init, s.cfg, s.gen)
+    assert not res.ok and torch.equal(res.pose, init)
+
+
+def test_deterministic_for_a_seed(tiny_seq):
+    a = _system(tiny_seq, ["data.max_frames=4"])
+    a.run(progress=False)
+    b = _system(tiny_seq, ["data.max_frames=4"])
+    b.run(progress=False)
+    assert torch.equal(torch.stack(a.state.est), torch.stack(b.state.est))
+
+
+@pytest.mark.parametrize("representation", ["lrslam", "eslam"])
+def test_fused_kernels_follow_the_reference_path_through_a_run(tiny_seq, representation):
+    # the fused kernels' shortcuts (merged rank loops, points with zero gradient skipped) checked where they run:
+    # parallel tracking and mapping with fused Adam, BA and the frozen-field caches, against the pure-torch path
+    from tdfields import kernels
+
+    runs = {}
+    for backend in ("torch", "numba"):
+        with kernels.use_backend(backend):
+            # every frame mapped and a keyframe, BA from the second keyframe on: the TUM preset's schedule
+            s = _system(tiny_seq, [f"representation={representation}", "parallel=true", "data.max_frames=5",
+                                   "mapping.every_frame=1", "mapping.keyframe_every=1", "mapping.ba_min_keyframes=1"])
+            s.run(progress=False)
+            runs[backend] = (torch.stack(s.state.est), s.scene.state_dict())
+    (ref_poses, ref_map), (poses, fused_map) = runs["torch"], runs["numba"]
+    torch.testing.assert_close(poses, ref_poses, rtol=0, atol=1e-4)
+    for name, t in ref_map.items():
+        torch.testing.assert_close(fused_map[name], t, rtol=1e-3, atol=1e-4, msg=name)
+
+
+def test_cuda_request_without_gpu_is_a_user_error():
+    from slam.engine.setup import resolve_device
+
+    if torch.cuda.is_available():
+        pytest.skip("a GPU exists")
+    with pytest.raises(SlamInputError, match="CUDA"):
+        resolve_device("cuda")
+
+
+def test_cli_errors_exit_2(tiny_seq, tmp_path, capsys):
+    from slam.cli import main
+
+    assert main(["run", "--config", "no/such", "--out", str(tmp_path)]) == 2
+    assert main(["run", "--out", str(tmp_path), "tracking.nope=1"]) == 2
+    assert main(["run", "--config", "tum/fr1_rpy-cpu", "--data", str(tiny_seq), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "expects tum data" in err
+    if not torch.cuda.is_available():
+        assert main(["run", "--data", str(tiny_seq), "--device", "cuda", "--out", str(tmp_path)]) == 2
+
+
+def test_params_command_table1(tmp_path, capsys):
+    from slam.cli import main
+
+    out = tmp_path / "p.json"
+    assert main(["params", "--config", "replica/room0", "--json", str(out)]) == 0
+    assert json.loads(out.read_text()) == {"geometry": 28672, "appearance": 827392, "decoders": 2693,
+                                           "total": 858757}
+    assert main(["params", "--config", "replica/room0", "representation=eslam", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["total"] == 6789445
+    assert main(["params", "--config", "scannet/scene0000", "representation=eslam", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["total"] == 17633349
+
+
+@pytest.mark.slow
+def test_end_to_end_run(tiny_seq, tmp_path):
+    from slam.cli import main
+
+    out = tmp_path / "run"
+    rc = main(["run", "--data", str(tiny_seq), "--out", str(out), "--quiet", "data.max_frames=16",
+               "tracking.pixels=200", "mapping.iters_first=60", "mapping.pixels=400", "meshing.resolution=0.04"])
+    assert rc == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["num_frames"] == 16
+    assert m["ate_rmse_m"] < 0.03
+    for key in ("ate_mean_m", "fpt_s", "parameters", "reconstruction"):
+        assert key in m
+    assert set(m["parameters"]) == {"geometry", "appearance", "decoders", "total"}
+    import trimesh
+
+    mesh = trimesh.load(out / "mesh.ply", process=False)
+    assert len(mesh.faces) > 100
+    for name in ("trajectory.txt", "trajectory_gt.txt", "trajectory.png", "config.yaml", "checkpoint.pt", "frames.csv"):
+        assert (out / name).is_file(), name
+    import csv
+
+    rows = list(csv.DictReader((out / "frames.csv").open()))
+    assert [int(r["k"]) for r in rows] == list(range(16)) and all(r["trusted"] == "1" for r in rows)
+    assert rows[0]["tracking_iters"] == "" and all(int(r["tracking_iters"]) >= 1 for r in rows[1:])
+    assert m["tracking_iters_mean"] == sum(int(r["tracking_iters"]) for r in rows[1:]) / 15
+    # re-extract from the checkpoint
+    assert main(["mesh", str(out / "checkpoint.pt"), "--resolution", "0.08", "--out", str(tmp_path / "m.ply")]) == 0
+    assert (tmp_path / "m.ply").stat().st_size > 0
