@@ -1,292 +1,44 @@
-"""Reading a configuration: YAML presets layered base <- representation <- dataset <- scene, ``key=value``
-overrides, type coercion and range checks against :mod:`slam.config.schema`, and writing it back."""
+"""Reading a configuration: YAML presets layered base <- representation <- dataset <- scene, plus ``key=value``
+overrides, into a validated :class:`Config`, and writing it back.
+
+The pieces live beside this module: :mod:`slam.config.presets` (preset files, ``inherit`` chains, merging),
+:mod:`slam.config.overrides` (``key=value`` parsing), :mod:`slam.config.validate` (types, ranges, moved keys) and
+:mod:`slam.config.dotted` (dotted keys); the names they offer that this module offered stay importable from here."""
 
 from __future__ import annotations
 
-import copy
-import dataclasses
-import math
-import re
 from pathlib import Path
-from typing import Any, Union, get_args, get_origin, get_type_hints
 
 import yaml
 
 from slam.config.schema import NONNEG, REPRESENTATIONS, Config, Range
+from slam.config.dotted import differing_keys, flatten
+from slam.config.overrides import alias, parse_overrides
+from slam.config.presets import CONFIG_DIR, deep_merge, preset_chain, read_yaml, list_presets
+from slam.config.validate import MOVED, config_from_dict
 from slam.errors import SlamInputError
 from slam.files import atomic_write_text
-from slam.core.losses import LossWeights
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
-
-
-# --------------------------------------------------------------------------------------------------- merging
-def _deep_merge(base: dict, update: dict) -> dict:
-    out = copy.deepcopy(base)
-    for k, v in update.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict) and k != "options":
-            out[k] = _deep_merge(out[k], v)
-        elif isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = {**out[k], **v}
-        else:
-            out[k] = copy.deepcopy(v)
-    return out
+# the schema's names too: all were importable from here before the split
+__all__ = ["CONFIG_DIR", "MOVED", "NONNEG", "REPRESENTATIONS", "Config", "Range", "check_representation", "config_from_dict", "differing_keys",
+           "flatten", "list_presets", "load_config", "parse_overrides", "save_config"]
 
 
-def _read_yaml(path: Path, what: str) -> dict:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise SlamInputError(f"{what} not found: {path}") from None
-    try:
-        data = yaml.safe_load(text) or {}
-    except yaml.YAMLError as exc:
-        raise SlamInputError(f"{path}: invalid YAML: {exc}") from None
-    if not isinstance(data, dict):
-        raise SlamInputError(f"{path}: a config file must be a mapping of keys, got {type(data).__name__}")
-    return data
-
-
-def list_presets() -> list[str]:
-    """Names of the bundled presets (dataset files and scene files, not base or representation blocks)."""
-    names = []
-    for p in sorted(CONFIG_DIR.rglob("*.yaml")):
-        rel = p.relative_to(CONFIG_DIR).with_suffix("").as_posix()
-        if rel == "base" or rel.startswith("representations/"):
-            continue
-        names.append(rel)
-    return names
-
-
-def _preset_path(name: str) -> Path:
-    p = Path(name)
-    if p.suffix in (".yaml", ".yml"):
-        if not p.is_file():
-            raise SlamInputError(f"config file not found: {name}")
-        return p
-    cand = CONFIG_DIR / f"{name}.yaml"
-    if not cand.is_file():
-        raise SlamInputError(f"unknown preset '{name}'; available: {', '.join(list_presets())} (or a .yaml path)")
-    return cand
-
-
-def _preset_chain(name: str, seen: tuple = ()) -> list[dict]:
-    """Layers for a preset, parents first (base excluded)."""
-    if name in seen:
-        raise SlamInputError(f"preset inheritance cycle: {' -> '.join(seen + (name,))}")
-    path = _preset_path(name)
-    data = _read_yaml(path, "config file")
-    parent = data.pop("inherit", None)
-    if parent is None and "/" in name and not name.endswith((".yaml", ".yml")):
-        parent = name.split("/", 1)[0]
-    chain = _preset_chain(parent, seen + (name,)) if parent not in (None, "base") else []
-    return chain + [data]
-
-
-def parse_overrides(items: list[str] | None) -> dict:
-    """``["a.b=1", "c=[1,2]"]`` -> nested dict; values parsed as YAML scalars/lists."""
-    out: dict = {}
-    for item in items or []:
-        if "=" not in item:
-            raise SlamInputError(f"override '{item}' must look like key=value (e.g. tracking.iters=10)")
-        key, value = item.split("=", 1)
-        key = key.strip()
-        if not key:
-            raise SlamInputError(f"override '{item}' has an empty key")
-        try:
-            parsed = yaml.safe_load(value) if value.strip() else None
-        except yaml.YAMLError:
-            parsed = value
-        node = out
-        parts = key.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise SlamInputError(f"override '{item}' conflicts with another override")
-        node[parts[-1]] = parsed
-    return out
-
-
-# --------------------------------------------------------------------------------------------------- typing
-# YAML 1.1 (PyYAML) reads exponent notation without a dot, "1e-3", as a string
-_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
-
-
-def _coerce(value: Any, tp: Any, key: str) -> Any:
-    origin = get_origin(tp)
-    if origin is Union:
-        args = [a for a in get_args(tp) if a is not type(None)]
-        if value is None:
-            return None
-        return _coerce(value, args[0], key)
-    if dataclasses.is_dataclass(tp):
-        if not isinstance(value, dict):
-            raise SlamInputError(f"config key '{key}' must be a mapping, got {value!r}")
-        return _build(tp, value, key + ".")
-    if tp is Any:
-        return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise SlamInputError(f"config key '{key}' must be true or false, got {value!r}")
-        return value
-    if tp is int:
-        # int(.inf) raises OverflowError and int(.nan) ValueError: refuse them here, with the key's name
-        if (isinstance(value, bool) or not isinstance(value, (int, float))
-                or isinstance(value, float) and (not math.isfinite(value) or int(value) != value)):
-            raise SlamInputError(f"config key '{key}' must be an integer, got {value!r}")
-        return int(value)
-    if tp is float:
-        # YAML 1.1 reads exponent notation without a dot ("1e-3") as a string; accept it as the number it spells
-        if isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):
-            return float(value)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SlamInputError(f"config key '{key}' must be a number, got {value!r}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
-            raise SlamInputError(f"config key '{key}' must be a string, got {value!r}")
-        return str(value)
-    if tp is list or origin is list:
-        if not isinstance(value, (list, tuple)):
-            raise SlamInputError(f"config key '{key}' must be a list, got {value!r}")
-        return list(value)
-    if tp is dict or origin is dict:
-        if not isinstance(value, dict):
-            raise SlamInputError(f"config key '{key}' must be a mapping, got {value!r}")
-        return dict(value)
-    return value
-
-
-# keys that moved: old dotted key -> new dotted key (a clear error instead of "unknown key")
-MOVED = {
-    "meshing.eval_samples": "evaluation.samples",
-    "meshing.eval_icp": "evaluation.icp",
-    "meshing.depth_l1_views": "evaluation.depth_l1_views",
-    "tracking.const_speed": "tracking.init (const_speed, previous or icp)",
-}
-
-
-# classes defined outside this module whose every field shares one range
-_CLASS_RANGES = {LossWeights: Range(**NONNEG)}
-
-
-def _check_value(key: str, value: Any, meta, default_range: Range | None = None) -> None:
-    rng: Range | None = meta.get("range", default_range)
-    choices = meta.get("choices")
-    if choices is not None and value not in choices:
-        raise SlamInputError(f"config key '{key}' = {value!r} is not allowed; choose from {', '.join(map(str, choices))}")
-    if rng is None or value is None:
-        return
-    for v in value if isinstance(value, list) else [value]:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise SlamInputError(f"config key '{key}' must hold numbers, got {value!r}")
-        if not rng.ok(float(v)):
-            raise SlamInputError(f"config key '{key}' = {value!r} is out of range: must be {rng}")
-
-
-def _build(cls, data: dict, prefix: str = ""):
-    hints = get_type_hints(cls)
-    fields_ = {f.name: f for f in dataclasses.fields(cls)}
-    for k in data:
-        if k not in fields_:
-            moved = MOVED.get(prefix + k)
-            if moved:
-                raise SlamInputError(f"config key '{prefix}{k}' is now '{moved}'")
-            raise SlamInputError(f"unknown config key '{prefix}{k}'; valid keys here: {', '.join(sorted(fields_))}")
-    kwargs = {}
-    for k, v in data.items():
-        f = fields_[k]
-        if isinstance(v, dict) and dataclasses.is_dataclass(hints[k]) and f.default_factory is not dataclasses.MISSING:
-            # a partial mapping fills in from this field's own default (mapping.weights is not tracking.weights)
-            v = {**dataclasses.asdict(f.default_factory()), **v}
-        kwargs[k] = _coerce(v, hints[k], prefix + k)
-        _check_value(prefix + k, kwargs[k], fields_[k].metadata, _CLASS_RANGES.get(cls))
-    return cls(**kwargs)
-
-
-def _upgraded(data: dict) -> dict:
-    """``data`` with every key of :data:`MOVED` put where it lives now (configs written by older versions)."""
-    out = copy.deepcopy(data)
-    tracking = out.get("tracking")
-    if isinstance(tracking, dict) and "const_speed" in tracking:
-        tracking.setdefault("init", "const_speed" if tracking.pop("const_speed") else "previous")
-    for old, new in MOVED.items():
-        *path, leaf = old.split(".")
-        node = out
-        for part in path:
-            node = node.get(part) if isinstance(node, dict) else None
-        if isinstance(node, dict) and leaf in node:
-            value = node.pop(leaf)
-            *npath, nleaf = new.split(".")
-            target = out
-            for part in npath:
-                target = target.setdefault(part, {})
-            target.setdefault(nleaf, value)
-    return out
-
-
-def config_from_dict(data: dict, upgrade: bool = False) -> Config:
-    """A validated :class:`Config` from a plain dict (e.g. ``config.yaml`` of a run or a checkpoint's config).
-
-    Args:
-        upgrade: first move keys that older versions wrote elsewhere (:data:`MOVED`); for configs this library
-            wrote itself (checkpoints, run folders), not for a user's YAML, which gets the error naming the new key.
+def check_representation(rep: str) -> str:
+    """``rep`` when it names a block under ``slam/configs/representations/``.
 
     Raises:
-        SlamInputError: an unknown key, a badly typed or out-of-range value.
-    """
-    if not isinstance(data, dict):
-        raise SlamInputError(f"a config must be a mapping of keys, got {type(data).__name__}")
-    if upgrade:
-        data = _upgraded(data)
-    cfg = _build(Config, data)
-    _validate(cfg)
-    return cfg
-
-
-def _validate(cfg: Config) -> None:
-    """Checks across keys (each key's own range is checked as it is read)."""
-    if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
-        raise SlamInputError(f"device must be cpu or cuda, got '{cfg.device}'")
-    for label, spec in (("geometry", cfg.geometry), ("appearance", cfg.appearance)):
-        if not spec.cell_sizes:
-            raise SlamInputError(f"config key '{label}.cell_sizes' must be a non-empty list of positive metres")
-    for key in ("bound", "marching_cubes_bound"):
-        b = getattr(cfg.scene, key)
-        if b is None and key == "marching_cubes_bound" or b == "auto" and key == "bound":
-            continue
-        ok = isinstance(b, list) and len(b) == 3 and all(
-            isinstance(r, list) and len(r) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                                        for v in r) and r[0] < r[1] for r in b)
-        if not ok:
-            allowed = "'auto' or " if key == "bound" else "null or "
-            raise SlamInputError(f"config key 'scene.{key}' must be {allowed}[[x0,x1],[y0,y1],[z0,z1]] with "
-                                 f"x0 < x1 (metres), got {b!r}")
-    if cfg.mapping.max_keyframes in (1, 2):
-        # the store keeps the first keyframe and the last two (the window always has them): fewer than 3 would
-        # have to drop one of those
-        raise SlamInputError(f"config key 'mapping.max_keyframes' = {cfg.mapping.max_keyframes} is out of range: "
-                             "must be 0 (keep every keyframe) or >= 3 (the first and the last two are always kept)")
-    if len(cfg.tracking.ignore_edge) != 2:
-        raise SlamInputError(f"config key 'tracking.ignore_edge' must be [rows, columns], got {cfg.tracking.ignore_edge!r}")
+        SlamInputError: it does not (the message lists the choices)."""
+    if rep not in REPRESENTATIONS:
+        raise SlamInputError(f"unknown representation '{rep}'; choose from {', '.join(REPRESENTATIONS)}")
+    return rep
 
 
 def _representation(layers: list[dict]) -> str:
     rep = "lrslam"
     for layer in layers:
         rep = layer.get("representation", rep)
-    if rep not in REPRESENTATIONS:
-        raise SlamInputError(f"unknown representation '{rep}'; choose from {', '.join(REPRESENTATIONS)}")
-    return rep
-
-
-def _alias(over: dict) -> dict:
-    """Short override aliases: ``bound=auto`` means ``scene.bound``."""
-    over = dict(over)
-    if "bound" in over:
-        over.setdefault("scene", {})
-        over["scene"] = {**over["scene"], "bound": over.pop("bound")}
-    return over
+    return check_representation(rep)
 
 
 def load_config(preset: str | None = "synthetic", overrides: list[str] | dict | None = None) -> Config:
@@ -299,13 +51,13 @@ def load_config(preset: str | None = "synthetic", overrides: list[str] | dict | 
         SlamInputError: unknown preset, file, key, representation, or a badly typed / out-of-range value.
     """
     preset = preset or "synthetic"
-    base = _read_yaml(CONFIG_DIR / "base.yaml", "base config")
+    base = read_yaml(CONFIG_DIR / "base.yaml", "base config")
     over = overrides if isinstance(overrides, dict) else parse_overrides(overrides)
-    layers = _preset_chain(preset) + [_alias(over)]
+    layers = preset_chain(preset) + [alias(over)]
     rep = _representation([base] + layers)
-    merged = _deep_merge(base, _read_yaml(CONFIG_DIR / "representations" / f"{rep}.yaml", "representation block"))
+    merged = deep_merge(base, read_yaml(CONFIG_DIR / "representations" / f"{rep}.yaml", "representation block"))
     for layer in layers:
-        merged = _deep_merge(merged, layer)
+        merged = deep_merge(merged, layer)
     if "name" not in over:
         merged["name"] = Path(preset).stem if preset.endswith((".yaml", ".yml")) else preset
     return config_from_dict(merged)
@@ -314,21 +66,3 @@ def load_config(preset: str | None = "synthetic", overrides: list[str] | dict | 
 def save_config(cfg: Config, path: str | Path) -> None:
     """Write ``cfg`` as YAML durably (:mod:`slam.files`: a full disk is one line naming the file)."""
     atomic_write_text(Path(path), yaml.safe_dump(cfg.to_dict(), sort_keys=False), "config")
-
-
-def flatten(d: dict, prefix: str = "") -> dict:
-    """A nested config mapping as ``{"dotted.key": value}`` (an empty mapping stays one value)."""
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict) and v:
-            out.update(flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
-def differing_keys(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> list[str]:
-    """The dotted keys, sorted, whose values differ between two config mappings (missing counts as None), except
-    those in ``ignore``."""
-    fa, fb = flatten(a), flatten(b)
-    return sorted(k for k in set(fa) | set(fb) if k not in ignore and fa.get(k) != fb.get(k))

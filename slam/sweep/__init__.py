@@ -17,17 +17,8 @@ an interrupted run (partial, no error, a checkpoint) goes on from its checkpoint
 """
 
 from slam.sweep.plan import RunSpec, plan, split_preset
-from slam.sweep.runs import (
-    RayEngine,
-    SerialEngine,
-    cpus_for,
-    execute,
-    failed_record,
-    finished_metrics,
-    interrupted,
-    require_ray,
-    run_one,
-)
+from slam.sweep.engines import RayEngine, SerialEngine, cpus_for, require_ray
+from slam.sweep.runs import execute, failed_record, finished_metrics, interrupted, run_one
 from slam.sweep.summary import group_stats, summarize, summary_markdown, write_summary
 
 __all__ = ["RunSpec", "plan", "split_preset", "RayEngine", "SerialEngine", "cpus_for", "execute", "failed_record",

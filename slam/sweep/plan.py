@@ -11,7 +11,7 @@ from slam.errors import SlamInputError
 
 # keys the sweep sets itself (from its flags), so an override must not
 _SWEEP_KEYS = ("representation", "seed", "threads", "data.path")
-_TRACEBACK_LINES = 12
+TRACEBACK_LINES = 12
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,8 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
         SlamInputError: no presets or representations, ``seeds < 1``, an unknown preset, representation or
             config key, an override of a key the sweep sets, a data folder that is missing or does not match.
     """
-    from slam.config import REPRESENTATIONS, load_config, parse_overrides
+    from slam.config import load_config, parse_overrides
+    from slam.config.load import check_representation
     from slam.config.load import flatten
 
     if not configs:
@@ -108,18 +109,46 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
     if threads < 1:
         raise SlamInputError(f"--cpus-per-run must be >= 1, got {threads}")
     for rep in representations:
-        if rep not in REPRESENTATIONS:
-            raise SlamInputError(f"unknown representation '{rep}'; choose from {', '.join(REPRESENTATIONS)}")
+        check_representation(rep)
     if len(set(representations)) != len(representations):
         raise SlamInputError(f"a representation is given twice: {' '.join(representations)}")
-    flat = flatten(parse_overrides(list(overrides)))
+    _refuse_sweep_keys(flatten(parse_overrides(list(overrides))))
+
+    out = Path(out).expanduser().resolve()
+    entries = _entries(configs, data)
+
+    specs: list[RunSpec] = []
+    checked: set = set()
+    names: dict[str, str] = {}
+    for preset, d in entries:
+        for rep in representations:
+            probe = RunSpec(preset, d, preset, rep, 0, tuple(overrides), "", mesh, threads)
+            cfg = load_config(preset, probe.config_overrides())
+            if check_data and (preset, d) not in checked:
+                from slam.engine.setup import load_data
+
+                load_data(cfg)
+                checked.add((preset, d))
+        label, folder = _label_and_folder(cfg.name, preset, d, entries, names)
+        for rep in representations:
+            for seed in range(seeds):
+                specs.append(RunSpec(preset, d, label, rep, seed, tuple(overrides),
+                                     str(out / f"{folder}-{rep}-s{seed}"), mesh, threads))
+    return specs
+
+
+def _refuse_sweep_keys(flat: dict) -> None:
+    """An override (``flat``: dotted keys) must not set a key the sweep sets from its own flags."""
     for key in _SWEEP_KEYS:
         if key in flat:
             flag = {"representation": "--representation", "seed": "--seeds", "threads": "--cpus-per-run",
                     "data.path": "--config PRESET=DATA"}[key]
             raise SlamInputError(f"override '{key}' is set by the sweep itself; use {flag}")
 
-    out = Path(out).expanduser().resolve()
+
+def _entries(configs: Sequence[str], data: str | None) -> list[tuple[str, str | None]]:
+    """``(preset, data folder)`` per ``--config`` item (``data`` for one without its own folder); a YAML path and
+    the data folder are made absolute."""
     entries = []
     for item in configs:
         preset, d = split_preset(item)
@@ -137,32 +166,23 @@ def plan(configs: Sequence[str], representations: Sequence[str], seeds: int, out
         entries.append((preset, d))
     if len(set(entries)) != len(entries):
         raise SlamInputError(f"a preset is given twice with the same data: {' '.join(configs)}")
-
-    specs: list[RunSpec] = []
-    checked: set = set()
-    names: dict[str, str] = {}
-    for preset, d in entries:
-        for rep in representations:
-            probe = RunSpec(preset, d, preset, rep, 0, tuple(overrides), "", mesh, threads)
-            cfg = load_config(preset, probe.config_overrides())
-            if check_data and (preset, d) not in checked:
-                from slam.engine.setup import load_data
-
-                load_data(cfg)
-                checked.add((preset, d))
-        name = _slug(cfg.name)
-        same_preset = [e for e in entries if e[0] == preset]
-        label = cfg.name if len(same_preset) == 1 or d is None else f"{cfg.name}@{Path(d).name}"
-        folder = name if label == cfg.name else f"{name}@{_slug(Path(d).name)}"
-        if folder in names and names[folder] != f"{preset}={d}":
-            raise SlamInputError(f"presets {names[folder]} and {preset}={d} would share the run folders {folder}-*")
-        names[folder] = f"{preset}={d}"
-        for rep in representations:
-            for seed in range(seeds):
-                specs.append(RunSpec(preset, d, label, rep, seed, tuple(overrides),
-                                     str(out / f"{folder}-{rep}-s{seed}"), mesh, threads))
-    return specs
+    return entries
 
 
-def _run_name(rec: dict) -> str:
+def _label_and_folder(cfg_name: str, preset: str, d: str | None, entries: list,
+                      names: dict[str, str]) -> tuple[str, str]:
+    """The summary label and the run folders' stem of one entry (``<name>``, or ``<name>@<data folder>`` for a
+    preset given with several data folders); ``names`` (stem -> ``preset=data``, updated here) refuses two
+    entries that would share run folders."""
+    name = _slug(cfg_name)
+    same_preset = [e for e in entries if e[0] == preset]
+    label = cfg_name if len(same_preset) == 1 or d is None else f"{cfg_name}@{Path(d).name}"
+    folder = name if label == cfg_name else f"{name}@{_slug(Path(d).name)}"
+    if folder in names and names[folder] != f"{preset}={d}":
+        raise SlamInputError(f"presets {names[folder]} and {preset}={d} would share the run folders {folder}-*")
+    names[folder] = f"{preset}={d}"
+    return label, folder
+
+
+def run_name(rec: dict) -> str:
     return f"{rec['label']} {rec['representation']} seed {rec['seed']}" + (f" {rec['tag']}" if rec.get("tag") else "")

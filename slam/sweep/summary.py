@@ -12,7 +12,7 @@ from pathlib import Path
 from slam.files import atomic_write_text
 from typing import Iterable, Sequence
 
-from slam.sweep.plan import _run_name
+from slam.sweep.plan import run_name
 
 
 # --------------------------------------------------------------------------------------------------- summary
@@ -70,7 +70,7 @@ def summary_markdown(summary: dict) -> str:
     failed = [r for r in summary["runs"] if r.get("status") != "ok"]
     if failed:
         lines += ["", "## Failed runs", ""]
-        lines += [f"- {_run_name(r)} (`{r['run_dir']}`): {r.get('error')}" for r in failed]
+        lines += [f"- {run_name(r)} (`{r['run_dir']}`): {r.get('error')}" for r in failed]
     return "\n".join(lines) + "\n"
 
 
