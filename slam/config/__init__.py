@@ -5,7 +5,8 @@ A preset is a name under ``slam/configs`` (``synthetic``, ``replica/room0``, ``t
 to a YAML file. Layering: ``base.yaml`` <- representation block <- the preset's parents <- the preset <- overrides.
 A file's parent is its ``inherit`` key when present, else the folder's dataset file (``tum/x`` inherits ``tum``),
 else ``base``. The ``representation`` key (``lrslam`` default, ``eslam``, ``cp_cp``, ``sa_sa``, ``sa_cp``,
-``vm_sa``) picks ``configs/representations/<name>.yaml``, which sets each quantity's field kind and rank; cell
+``vm_sa``: :data:`REPRESENTATIONS`, one per file) picks ``configs/representations/<name>.yaml``, which sets each
+quantity's field kind (:data:`FIELD_KINDS`: whatever :data:`tdfields.KINDS` holds) and rank; cell
 sizes and channels come from ``base.yaml`` (the same grids for every representation), and any explicit key (a
 preset's or an override's) wins.
 
@@ -26,6 +27,7 @@ from slam.config.load import (
 )
 from slam.config.schema import (
     FIELD_KINDS,
+    KEYFRAME_STORAGES,
     MAPPING_WEIGHTS,
     REPRESENTATIONS,
     TRACKING_WEIGHTS,
@@ -45,7 +47,7 @@ from slam.config.schema import (
 
 __all__ = [
     "CONFIG_DIR", "MOVED", "config_from_dict", "list_presets", "load_config", "parse_overrides", "save_config",
-    "FIELD_KINDS", "MAPPING_WEIGHTS", "REPRESENTATIONS", "TRACKING_WEIGHTS", "Config", "DataConfig",
-    "EvaluationConfig", "FieldSpec", "MappingConfig", "MeshingConfig", "Range", "RenderingConfig", "SceneConfig",
-    "TrackingConfig", "choice", "num",
+    "FIELD_KINDS", "KEYFRAME_STORAGES", "MAPPING_WEIGHTS", "REPRESENTATIONS", "TRACKING_WEIGHTS", "Config",
+    "DataConfig", "EvaluationConfig", "FieldSpec", "MappingConfig", "MeshingConfig", "Range", "RenderingConfig",
+    "SceneConfig", "TrackingConfig", "choice", "num",
 ]

@@ -1,7 +1,7 @@
 """The configuration's schema: every key of a SLAM run as a typed dataclass field, with its default and its range.
 
 ``num(default, lo=..., hi=...)`` declares a numeric key's allowed values, ``choice(default, options)`` an
-enumerated one; :mod:`slam.config.load` checks every value against them as a config is read. Defaults are ESLAM's
+enumerated one; :mod:`slam.config.validate` checks every value against them as a config is read. Defaults are ESLAM's
 (docs/slam.md, "The pipeline (as implemented)") unless a field's comment says "ours".
 """
 
@@ -9,13 +9,45 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+import tdfields
+from slam.config.presets import CONFIG_DIR
 from slam.core.losses import LossWeights
 
-REPRESENTATIONS = ("lrslam", "eslam", "cp_cp", "sa_sa", "sa_cp", "vm_sa")
-FIELD_KINDS = ("cp", "dense_grid", "six_axis", "triplane", "vector_matrix")  # tdfields.KINDS
+
+class RegistryNames(Sequence):
+    """The names of a registry (a dict such as :data:`tdfields.KINDS`), sorted, as they are when read: a
+    :func:`choice` over them accepts what is registered after this module is imported too."""
+
+    def __init__(self, registry: Mapping[str, Any]):
+        self._registry = registry
+
+    def __getitem__(self, i):
+        return tuple(self)[i]
+
+    def __len__(self) -> int:
+        return len(self._registry)
+
+    def __contains__(self, name) -> bool:
+        return isinstance(name, str) and name in self._registry
+
+    def __iter__(self):
+        return iter(sorted(self._registry))
+
+    def __repr__(self) -> str:
+        return f"RegistryNames{tuple(self)!r}"
+
+
+#: the representation blocks, one per ``slam/configs/representations/<name>.yaml``: the default first, then sorted
+REPRESENTATIONS = ("lrslam", *sorted(p.stem for p in (CONFIG_DIR / "representations").glob("*.yaml")
+                                     if p.stem != "lrslam"))
+#: the field kinds of ``geometry.kind`` / ``appearance.kind``: :data:`tdfields.KINDS`, as registered when read
+FIELD_KINDS = RegistryNames(tdfields.KINDS)
+#: ``mapping.keyframe_storage``: images as loaded, or 8-bit colour + float16 depth (slam.engine.keyframes)
+KEYFRAME_STORAGES = ("float32", "compact")
 
 
 # --------------------------------------------------------------------------------------------------- ranges
@@ -58,9 +90,11 @@ def num(default, lo=None, hi=None, lo_open=False, hi_open=False, **kw):
     return field(default=default, metadata=meta, **kw)
 
 
-def choice(default, options: tuple, **kw):
-    """A dataclass field whose value must be one of ``options``."""
-    return field(default=default, metadata={"choices": tuple(options)}, **kw)
+def choice(default, options: tuple | RegistryNames, **kw):
+    """A dataclass field whose value must be one of ``options`` (a :class:`RegistryNames` is read as a config is
+    checked)."""
+    options = options if isinstance(options, RegistryNames) else tuple(options)
+    return field(default=default, metadata={"choices": options}, **kw)
 
 
 # every numeric key has a finite upper bound too: a value no run could use (1e30 pixels, a 1e9-iteration call) is
@@ -76,8 +110,9 @@ METRES = {"lo": 0, "lo_open": True, "hi": 1000.0}  # lengths in metres
 
 @dataclass
 class DataConfig:
-    """Dataset: ``kind`` is passed to ``slam.data.load_dataset`` (``auto``, ``replica``, ``tum``, ``scannet``...);
-    ``path`` null means the bundled synthetic sequence. ``options`` are loader options (crop_edge, crop_size,
+    """Dataset: ``kind`` is passed to ``slam.data.load_dataset`` (``auto`` or a name in ``slam.data.DATASETS``:
+    ``replica``, ``tum``, ``scannet``...; not a schema choice, as slam.config sits below slam.data: a test checks
+    the presets' kinds); ``path`` null means the bundled synthetic sequence. ``options`` are loader options (crop_edge, crop_size,
     undistort, ...). ``max_frames`` and ``stride`` subsample the sequence. A frame that cannot be read (missing,
     truncated, wrong size) is skipped and listed in ``events``; once more than ``max_bad_fraction`` of the
     sequence's frames were bad, the run stops with an error (after its outputs are written)."""
@@ -120,13 +155,14 @@ class SceneConfig:
     decoder_hidden: int = num(16, lo=1, hi=4096)
 
 
-def _weights(fs, center, tail, depth, color):
-    return lambda: LossWeights(fs=fs, center=center, tail=tail, depth=depth, color=color)
+def _weights(**weights: float):
+    return lambda: LossWeights(**weights)
 
 
-# the one definition of ESLAM's loss weights (docs/slam.md, Losses); LossWeights itself lives with the losses
-TRACKING_WEIGHTS = _weights(10.0, 200.0, 50.0, 1.0, 5.0)
-MAPPING_WEIGHTS = _weights(5.0, 200.0, 10.0, 0.1, 5.0)
+# the one definition of ESLAM's loss weights (docs/slam.md, Losses); LossWeights itself lives with the losses, one
+# weight per term of slam.core.losses.LOSS_TERMS (a term left out here takes its LossWeights default)
+TRACKING_WEIGHTS = _weights(fs=10.0, center=200.0, tail=50.0, depth=1.0, color=5.0)
+MAPPING_WEIGHTS = _weights(fs=5.0, center=200.0, tail=10.0, depth=0.1, color=5.0)
 
 
 @dataclass
@@ -195,7 +231,7 @@ class MappingConfig:
     joint_opt_cam_lr: float = num(0.001, **RATE)
     ba_min_keyframes: int = num(4, **NONNEG)
     # ours: keyframe images as loaded (float32) or 8-bit colour + float16 depth (compact, 3.2x less memory)
-    keyframe_storage: str = choice("float32", ("float32", "compact"))
+    keyframe_storage: str = choice("float32", KEYFRAME_STORAGES)
     max_keyframes: int = num(0, **NONNEG)  # ours: 0 keeps all; else the most redundant one goes (bounded memory)
     weights: LossWeights = field(default_factory=MAPPING_WEIGHTS)
 

@@ -10,19 +10,28 @@ For a sample at depth ``z`` on a ray with measured depth ``D`` and predicted nor
 
 Each SDF term is the mean over all qualifying points pooled across the batch (ESLAM's code, not per-ray means).
 ``L_d`` is the mean squared depth error over rays, ``L_c`` the mean squared colour error over rays and channels.
+
+The terms are named functions in :data:`LOSS_TERMS` (registered with :func:`loss_term`), and :class:`LossWeights`
+holds one weight per term under the same name: :func:`total_loss` sums ``weight * term`` over the registry in its
+order. Adding a term: a function ``f(batch: LossBatch) -> scalar tensor`` decorated with ``@loss_term("name")``
+below, and a field ``name: float = 0.0`` in :class:`LossWeights` (config keys ``tracking.weights.name`` /
+``mapping.weights.name`` follow from it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
+from typing import Callable
 
 import torch
 
 
 @dataclass
 class LossWeights:
-    """Weights of the five terms: free space, centre, tail, depth, colour (ESLAM's values for tracking and mapping:
-    ``slam.config.TRACKING_WEIGHTS`` / ``MAPPING_WEIGHTS``, the config keys ``tracking.weights`` / ``mapping.weights``)."""
+    """One weight per term of :data:`LOSS_TERMS`, in its order: free space, centre, tail, depth, colour (ESLAM's
+    values for tracking and mapping: ``slam.config.TRACKING_WEIGHTS`` / ``MAPPING_WEIGHTS``, the config keys
+    ``tracking.weights`` / ``mapping.weights``)."""
 
     fs: float
     center: float
@@ -83,6 +92,66 @@ def tracking_inliers(rendered_depth: torch.Tensor, depth: torch.Tensor, factor: 
     return err < factor * err.median()
 
 
+@dataclass
+class LossBatch:
+    """What the terms read: the SDF and depth terms the rays with depth (``sdf``, ``z`` ``[R, N]``; ``depth``,
+    ``rendered_depth`` ``[R]``), the colour term every ray (``rendered_color``, ``color`` ``[R', 3]``)."""
+
+    sdf: torch.Tensor
+    z: torch.Tensor
+    depth: torch.Tensor
+    rendered_depth: torch.Tensor
+    rendered_color: torch.Tensor
+    color: torch.Tensor
+    truncation: float
+
+    @cached_property
+    def sdf_terms(self) -> dict[str, torch.Tensor]:
+        """:func:`sdf_losses` of the batch, computed once for the three SDF terms."""
+        return sdf_losses(self.sdf, self.z, self.depth, self.truncation)
+
+
+#: name -> term, in the order :func:`total_loss` sums them; each name is a field of :class:`LossWeights`
+LOSS_TERMS: dict[str, Callable[[LossBatch], torch.Tensor]] = {}
+
+
+def loss_term(name: str):
+    """Decorator: register ``f(batch: LossBatch) -> scalar tensor`` as the loss term ``name`` (after the others)."""
+
+    def register(fn):
+        if name in LOSS_TERMS:
+            raise ValueError(f"loss term {name!r} is registered twice")
+        LOSS_TERMS[name] = fn
+        return fn
+
+    return register
+
+
+@loss_term("fs")
+def free_space_term(batch: LossBatch) -> torch.Tensor:
+    return batch.sdf_terms["fs"]
+
+
+@loss_term("center")
+def center_term(batch: LossBatch) -> torch.Tensor:
+    return batch.sdf_terms["center"]
+
+
+@loss_term("tail")
+def tail_term(batch: LossBatch) -> torch.Tensor:
+    return batch.sdf_terms["tail"]
+
+
+@loss_term("depth")
+def depth_term(batch: LossBatch) -> torch.Tensor:
+    return depth_loss(batch.rendered_depth, batch.depth)
+
+
+@loss_term("color")
+def color_term(batch: LossBatch) -> torch.Tensor:
+    return color_loss(batch.rendered_color, batch.color)
+
+
 def total_loss(
     sdf: torch.Tensor,
     z: torch.Tensor,
@@ -94,7 +163,7 @@ def total_loss(
     weights: LossWeights,
     depth_mask: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Weighted sum of the five terms.
+    """Weighted sum of the terms of :data:`LOSS_TERMS`, in its order (``weights`` has one weight per term).
 
     Args:
         sdf, z: ``[R, N]``.
@@ -103,19 +172,17 @@ def total_loss(
             uses every ray passed in.
 
     Returns:
-        ``(loss, parts)`` with the scalar loss and the unweighted terms as detached 0-d tensors.
+        ``(loss, parts)`` with the scalar loss and the unweighted terms as detached 0-d tensors. A term whose
+        weight is 0 is still computed and added as ``0 * term`` (so a NaN term still makes the loss NaN).
     """
     if depth_mask is None:
         depth_mask = depth > 0
-    parts = sdf_losses(sdf[depth_mask], z[depth_mask], depth[depth_mask], truncation)
-    parts["depth"] = depth_loss(rendered_depth[depth_mask], depth[depth_mask])
-    parts["color"] = color_loss(rendered_color, color)
-    loss = (
-        weights.fs * parts["fs"]
-        + weights.center * parts["center"]
-        + weights.tail * parts["tail"]
-        + weights.depth * parts["depth"]
-        + weights.color * parts["color"]
-    )
+    batch = LossBatch(sdf[depth_mask], z[depth_mask], depth[depth_mask], rendered_depth[depth_mask],
+                      rendered_color, color, truncation)
+    parts = {name: term(batch) for name, term in LOSS_TERMS.items()}
+    loss = None
+    for name, part in parts.items():  # left to right, as ``w1 * t1 + w2 * t2 + ...``: the same rounding
+        weighted = getattr(weights, name) * part
+        loss = weighted if loss is None else loss + weighted
     # the parts stay tensors: converting them to floats would wait on the device every iteration, for a log line
     return loss, {k: v.detach() for k, v in parts.items()}

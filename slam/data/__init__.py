@@ -6,12 +6,14 @@ convention** (x right, y down, z forward; no axis flips anywhere), :class:`Intri
 seconds and the frame index. See ``docs/data.md``.
 
 Sources: Replica (and the synthetic room), TUM RGB-D (and TUM-format recordings of any camera,
-:class:`TUMWriter`), ScanNet, 7-Scenes. Datasets: ``len(ds)``, ``ds[i]``, ``ds.intrinsics``, ``ds.timestamps``,
+:class:`TUMWriter`), ScanNet, 7-Scenes: one entry each in :data:`DATASETS` (:mod:`slam.data.registry`, which
+says how to add one). Datasets: ``len(ds)``, ``ds[i]``, ``ds.intrinsics``, ``ds.timestamps``,
 ``ds.gt_poses [N, 4, 4]``, ``ds.name``, ``ds.gt_mesh_path`` (Path or None).
 """
 
 from slam.data.base import RGBDDataset
 from slam.data.loader import detect_layout, load_dataset
+from slam.data.registry import DATASETS, REFERENCE_OPTIONS, DatasetKind
 from slam.data.replica import ReplicaDataset
 from slam.data.scannet import ScanNetDataset
 from slam.data.sevenscenes import SevenScenesDataset
@@ -30,12 +32,7 @@ __all__ = [
     "SevenScenesDataset",
     "load_dataset",
     "detect_layout",
+    "DATASETS",
+    "DatasetKind",
     "REFERENCE_OPTIONS",
 ]
-
-#: loader options that reproduce the reference (ESLAM) configs' image processing
-REFERENCE_OPTIONS = {
-    "replica": {},
-    "scannet": {"crop_edge": 10},
-    "tum": {"crop_size": (384, 512), "crop_edge": 8},
-}

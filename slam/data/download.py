@@ -24,14 +24,16 @@ import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
-from slam.data import archive
+from slam.data import archive, registry
 from slam.errors import SlamInputError
 
 __all__ = ["DATASETS", "KNOWN_CHECKSUMS", "MIRROR_ENV", "SCANNET_ACCESS", "Source", "fetch", "resolve",
            "run_commands"]
 
 MIRROR_ENV = "LRSLAM_DOWNLOAD_MIRROR"
-DATASETS = ("replica", "tum", "7scenes", "scannet")
+#: the names `lrslam download` takes (slam.data.registry: the fetched ones, then those given on request)
+DATASETS = tuple(sorted((name for name, d in registry.DATASETS.items() if d.download),
+                        key=lambda name: registry.DATASETS[name].download == "request"))
 
 REPLICA_URL = "https://cvg-data.inf.ethz.ch/nice-slam/data"
 TUM_URL = "https://cvg.cit.tum.de/rgbd/dataset"

@@ -24,7 +24,7 @@ from slam.data.base import RGBDDataset
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
 
-__all__ = ["ReplicaDataset", "REPLICA_INTRINSICS", "REPLICA_DEPTH_SCALE", "read_replica_traj"]
+__all__ = ["ReplicaDataset", "REPLICA_INTRINSICS", "REPLICA_DEPTH_SCALE", "looks_like", "read_replica_traj"]
 
 #: NICE-SLAM's camera for every Replica scene.
 REPLICA_INTRINSICS = Intrinsics(fx=600.0, fy=600.0, cx=599.5, cy=339.5, height=680, width=1200)
@@ -57,6 +57,50 @@ def read_replica_traj(path: Path) -> np.ndarray:
     return poses
 
 
+def looks_like(root: Path) -> bool:
+    """Whether ``root`` is laid out as a Replica scene (``results/`` and ``traj.txt``; the synthetic room too)."""
+    return (root / "results").is_dir() and (root / "traj.txt").exists()
+
+
+def _frame_files(results: Path) -> tuple[list[Path], list[Path]]:
+    """The colour (``frame*``) and depth (``depth*.png``) images of ``results/``, paired by frame number."""
+    colors = sorted(
+        [p for p in results.glob("frame*") if p.suffix.lower() in (".jpg", ".jpeg", ".png")], key=_frame_number
+    )
+    depths = sorted(results.glob("depth*.png"), key=_frame_number)
+    if len(colors) != len(depths):
+        raise SlamInputError(f"{results}: {len(colors)} colour images (frame*) but {len(depths)} depth images (depth*)")
+    for c, d in zip(colors, depths):
+        if _frame_number(c) != _frame_number(d):
+            # equal counts with different numbering would pair the wrong images silently
+            raise SlamInputError(f"{results}: {c.name} is paired with {d.name}; frame numbers must match")
+    return colors, depths
+
+
+def _camera_file(cam_path: Path, intrinsics: Intrinsics | None) -> tuple[dict, Intrinsics]:
+    """``(cam.json's contents or {}, the camera)``: ``intrinsics`` if given, else cam.json's, else NICE-SLAM's."""
+    cam = {}
+    if cam_path.exists():
+        try:
+            cam = json.loads(cam_path.read_text())
+            if intrinsics is None:
+                intrinsics = Intrinsics(
+                    float(cam["fx"]), float(cam["fy"]), float(cam["cx"]), float(cam["cy"]),
+                    int(cam["height"]), int(cam["width"]),
+                )
+        except (ValueError, KeyError, TypeError) as exc:
+            raise SlamInputError(f"{cam_path}: bad camera file ({type(exc).__name__}: {exc})") from None
+    return cam, REPLICA_INTRINSICS if intrinsics is None else intrinsics
+
+
+def _find_mesh(root: Path) -> Path | None:
+    """The scene's ground-truth mesh: ``<scene>/mesh.ply`` or ``<scene>/../<scene>_mesh.ply``, else None."""
+    for cand in (root / "mesh.ply", root.parent / f"{root.name}_mesh.ply"):
+        if cand.exists():
+            return cand
+    return None
+
+
 class ReplicaDataset(RGBDDataset):
     """Replica / synthetic sequence in the NICE-SLAM layout (see module docstring).
 
@@ -83,43 +127,15 @@ class ReplicaDataset(RGBDDataset):
         results = root / "results"
         if not results.is_dir():
             raise SlamInputError(f"{root}: not a Replica-layout folder (no results/ directory)")
-        colors = sorted(
-            [p for p in results.glob("frame*") if p.suffix.lower() in (".jpg", ".jpeg", ".png")], key=_frame_number
-        )
-        depths = sorted(results.glob("depth*.png"), key=_frame_number)
-        cam = {}
-        cam_path = root / "cam.json"
-        if cam_path.exists():
-            try:
-                cam = json.loads(cam_path.read_text())
-                if intrinsics is None:
-                    intrinsics = Intrinsics(
-                        float(cam["fx"]), float(cam["fy"]), float(cam["cx"]), float(cam["cy"]),
-                        int(cam["height"]), int(cam["width"]),
-                    )
-            except (ValueError, KeyError, TypeError) as exc:
-                raise SlamInputError(f"{cam_path}: bad camera file ({type(exc).__name__}: {exc})") from None
-        if intrinsics is None:
-            intrinsics = REPLICA_INTRINSICS
+        cam, intrinsics = _camera_file(root / "cam.json", intrinsics)
+        colors, depths = _frame_files(results)
         if depth_scale is None:
             depth_scale = float(cam.get("depth_scale", REPLICA_DEPTH_SCALE))
-        if len(colors) != len(depths):
-            raise SlamInputError(f"{results}: {len(colors)} colour images (frame*) but {len(depths)} depth images (depth*)")
-        for c, d in zip(colors, depths):
-            if _frame_number(c) != _frame_number(d):
-                # equal counts with different numbering would pair the wrong images silently
-                raise SlamInputError(f"{results}: {c.name} is paired with {d.name}; frame numbers must match")
         poses = read_replica_traj(root / "traj.txt")
         if len(poses) != len(colors):
             raise SlamInputError(f"{root / 'traj.txt'}: {len(poses)} poses but {len(colors)} frames in {results}")
         self.name = str(cam.get("name", root.name))
-        mesh = Path(gt_mesh) if gt_mesh is not None else None
-        if mesh is None:
-            for cand in (root / "mesh.ply", root.parent / f"{root.name}_mesh.ply"):
-                if cand.exists():
-                    mesh = cand
-                    break
-        self.gt_mesh_path = mesh
+        self.gt_mesh_path = Path(gt_mesh) if gt_mesh is not None else _find_mesh(root)
         self._setup(
             root=root,
             color_paths=colors,

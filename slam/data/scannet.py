@@ -21,11 +21,16 @@ from slam.data.base import RGBDDataset
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
 
-__all__ = ["ScanNetDataset", "SCANNET_INTRINSICS", "SCANNET_DEPTH_SCALE"]
+__all__ = ["ScanNetDataset", "SCANNET_INTRINSICS", "SCANNET_DEPTH_SCALE", "looks_like"]
 
 #: the reference configs' depth camera, used for every scene when no intrinsic/ folder exists
 SCANNET_INTRINSICS = Intrinsics(577.590698, 578.729797, 318.905426, 242.683609, 480, 640)
 SCANNET_DEPTH_SCALE = 1000.0
+
+
+def looks_like(root: Path) -> bool:
+    """Whether ``root`` is laid out as a ScanNet scene (``color/`` and ``depth/`` folders)."""
+    return (root / "color").is_dir() and (root / "depth").is_dir()
 
 
 def _by_number(folder: Path, suffixes: tuple[str, ...]) -> dict[int, Path]:

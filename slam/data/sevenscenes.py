@@ -27,7 +27,8 @@ from slam.data.calibration import parse_depth_scale, parse_intrinsics
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
 
-__all__ = ["SevenScenesDataset", "SEVEN_SCENES_INTRINSICS", "SEVEN_SCENES_DEPTH_SCALE", "SEVEN_SCENES_INVALID"]
+__all__ = ["SevenScenesDataset", "SEVEN_SCENES_INTRINSICS", "SEVEN_SCENES_DEPTH_SCALE", "SEVEN_SCENES_INVALID",
+           "looks_like", "scene_folder_hint"]
 
 #: the Kinect depth camera as the dataset page gives it, on the raw 640x480 images
 SEVEN_SCENES_INTRINSICS = Intrinsics(585.0, 585.0, 320.0, 240.0, 480, 640)
@@ -35,6 +36,19 @@ SEVEN_SCENES_DEPTH_SCALE = 1000.0  # millimetres
 SEVEN_SCENES_INVALID = 65535
 
 _FRAME = re.compile(r"frame-(\d+)\.(color\.png|color\.jpg|depth\.png|pose\.txt)$")
+
+
+def looks_like(root: Path) -> bool:
+    """Whether ``root`` is a 7-Scenes sequence folder (``frame-NNNNNN.pose.txt`` or ``.color.*`` files)."""
+    return any(root.glob("frame-*.pose.txt")) or any(root.glob("frame-*.color.*"))
+
+
+def scene_folder_hint(root: Path) -> str | None:
+    """For a 7-Scenes scene folder (several ``seq-NN`` sequences, none at the top): what to pass instead."""
+    sequences = sorted(p for p in root.glob("seq-*") if p.is_dir() and looks_like(p))
+    if not sequences:
+        return None
+    return f"{root}: a 7-Scenes scene with {len(sequences)} sequences; pass one sequence folder, e.g. {sequences[0]}"
 
 
 def _image_size(path: Path) -> tuple[int, int]:

@@ -9,6 +9,8 @@
     <seq>/calibration.yaml          optional: the camera of a recording made with another sensor
                                     (slam.data.calibration; what slam.data.tum_writer writes)
 
+The text files are read by :mod:`slam.data.tum_format` (the one reader of TUM rows, slam.eval's too).
+
 Association (reference loaders): every rgb frame takes the nearest depth frame and the ground truth at its
 timestamp, and is kept only if both are within ``max_dt`` (0.08 s); then frames closer than ``min_dt``
 (1/32 s) to the previous kept one are dropped. If ``associations.txt`` exists its rgb/depth pairs are used
@@ -38,11 +40,12 @@ from slam.data.base import RGBDDataset
 from slam.data.calibration import (
     CALIBRATION_FILE, parse_depth_scale, parse_distortion, parse_intrinsics, read_calibration,
 )
+from slam.data.tum_format import ASSOCIATION_FILES, read_associations, read_tum_list, read_tum_poses
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
 from slam.core.geometry import poses_from_tum
 
-__all__ = ["TUMDataset", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "read_tum_list"]
+__all__ = ["TUMDataset", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "looks_like", "read_tum_list"]
 
 log = logging.getLogger(__name__)
 
@@ -58,60 +61,63 @@ TUM_CAMERAS: dict[str, tuple[Intrinsics, tuple[float, ...] | None]] = {
 }
 
 
-def read_tum_list(path: Path) -> tuple[np.ndarray, list[str]]:
-    """Read a TUM ``timestamp file`` list as ``(timestamps [N] float64, files)``; SlamInputError if bad."""
-    try:
-        text = Path(path).read_text()
-    except FileNotFoundError:
-        raise SlamInputError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SlamInputError(f"{path}: cannot read ({exc})") from None
-    ts, files = [], []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.split()
-        if len(parts) < 2:
-            raise SlamInputError(f"{path}:{lineno}: expected 'timestamp filename'")
-        try:
-            ts.append(float(parts[0]))
-        except ValueError:
-            raise SlamInputError(f"{path}:{lineno}: bad timestamp {parts[0]!r}") from None
-        files.append(parts[1])
-    return np.asarray(ts, dtype=np.float64), files
+def looks_like(root: Path) -> bool:
+    """Whether ``root`` holds a TUM sequence: an ``rgb.txt`` list or an associations file."""
+    return (root / "rgb.txt").exists() or any((root / n).exists() for n in ASSOCIATION_FILES)
 
 
-def _read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(timestamps [M], rows [M, 7])`` of a TUM ground-truth file, sorted by time."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SlamInputError(f"{path}: cannot read ({exc})") from None
-    rows = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.replace(",", " ").split()
-        if len(parts) < 8:
-            raise SlamInputError(f"{path}:{lineno}: expected 'timestamp tx ty tz qx qy qz qw'")
-        try:
-            rows.append([float(v) for v in parts[:8]])
-        except ValueError as exc:
-            raise SlamInputError(f"{path}:{lineno}: non-numeric value ({exc})") from None
-    if not rows:
-        raise SlamInputError(f"{path}: no ground-truth poses")
-    data = np.asarray(rows)
-    if not np.isfinite(data).all():
-        bad = int(np.flatnonzero(~np.isfinite(data).all(1))[0])
-        raise SlamInputError(f"{path}: ground-truth row {bad} contains NaN or inf")
-    qn = np.linalg.norm(data[:, 4:8], axis=1)
-    if np.any(np.abs(qn - 1) > 0.01):
-        bad = int(np.flatnonzero(np.abs(qn - 1) > 0.01)[0])
-        raise SlamInputError(f"{path}: ground-truth row {bad} has quaternion norm {qn[bad]:.4f} (not a rotation)")
+def _pairs(root: Path, association: str, max_dt: float):
+    """The colour frames and their depth frames: ``(rgb timestamps [N], rgb files, depth files, the file the
+    pairs come from, the number of rgb entries before pairing, whether an associations file gave them)``."""
+    assoc_file = next((root / n for n in ASSOCIATION_FILES if (root / n).exists()), None)
+    if association not in ("auto", "file", "timestamps"):
+        raise SlamInputError(f"association must be auto, file or timestamps, got {association!r}")
+    if association == "file" and assoc_file is None:
+        raise SlamInputError(f"{root}: association='file' but there is no associations.txt")
+    if assoc_file is not None and association != "timestamps":
+        rgb_ts, rgb_files, depth_files = read_associations(assoc_file)
+        return rgb_ts, rgb_files, depth_files, assoc_file, len(rgb_ts), True
+    rgb_ts, rgb_files = read_tum_list(root / "rgb.txt")
+    depth_ts, dfiles = read_tum_list(root / "depth.txt")
+    if len(rgb_ts) == 0 or len(depth_ts) == 0:
+        raise SlamInputError(f"{root}: rgb.txt has {len(rgb_ts)} and depth.txt {len(depth_ts)} entries")
+    order = np.argsort(depth_ts, kind="stable")
+    dts = depth_ts[order]
+    nd = order[_nearest(dts, rgb_ts)] if len(dts) > 1 else np.zeros(len(rgb_ts), dtype=np.int64)
+    keep = np.abs(depth_ts[nd] - rgb_ts) < max_dt
+    rgb_files = [f for f, k in zip(rgb_files, keep) if k]
+    depth_files = [dfiles[j] for j, k in zip(nd, keep) if k]
+    return rgb_ts[keep], rgb_files, depth_files, root / "depth.txt", len(rgb_ts), False
+
+
+def _ground_truth(root: Path, rgb_ts: np.ndarray, max_dt: float, interpolate: bool):
+    """``(ground-truth file or None, its timestamps, poses [N, 4, 4] at rgb_ts, [N] mask of frames with ground
+    truth)``; without a ground-truth file every pose is NaN and every frame counts as having one."""
+    gt_path = next((root / n for n in ("groundtruth.txt", "pose.txt") if (root / n).exists()), None)
+    if gt_path is None:
+        # a recording of one's own: SLAM needs no ground truth, only the evaluation does
+        log.warning("%s: no groundtruth.txt (or pose.txt): poses unknown, ATE will not be computed", root)
+        return None, np.zeros(0), np.full((len(rgb_ts), 4, 4), np.nan), np.ones(len(rgb_ts), dtype=bool)
+    data = read_tum_poses(gt_path, what="ground-truth row")
     data = data[np.argsort(data[:, 0], kind="stable")]
-    return data[:, 0], data[:, 1:8]
+    poses, has_gt = _gt_at(data[:, 0], data[:, 1:8], rgb_ts, max_dt, interpolate)
+    if not has_gt.all():
+        log.info("%s: %d of %d frames have no ground truth within %.3f s and are dropped",
+                 root, int((~has_gt).sum()), len(has_gt), max_dt)
+    return gt_path, data[:, 0], poses, has_gt
+
+
+def _spaced(rgb_ts: np.ndarray, keep: np.ndarray, min_dt: float) -> np.ndarray:
+    """``keep`` without the frames closer than ``min_dt`` seconds to the previous kept one."""
+    keep = keep.copy()
+    last = -np.inf
+    for k in range(len(rgb_ts)):
+        if keep[k]:
+            if rgb_ts[k] - last < min_dt:
+                keep[k] = False
+            else:
+                last = rgb_ts[k]
+    return keep
 
 
 def _nearest(sorted_ts: np.ndarray, query: np.ndarray) -> np.ndarray:
@@ -213,56 +219,13 @@ class TUMDataset(RGBDDataset):
         if not root.is_dir():
             raise SlamInputError(f"{root}: TUM sequence folder not found")
         self.name = root.name
-        assoc_file = next((root / n for n in ("associations.txt", "associate.txt") if (root / n).exists()), None)
-        if association not in ("auto", "file", "timestamps"):
-            raise SlamInputError(f"association must be auto, file or timestamps, got {association!r}")
-        if association == "file" and assoc_file is None:
-            raise SlamInputError(f"{root}: association='file' but there is no associations.txt")
-        use_file = assoc_file is not None and association != "timestamps"
-
-        if use_file:
-            rgb_ts, rgb_files, depth_files = self._read_associations(assoc_file)
-            source, n_rgb = assoc_file, len(rgb_ts)
-        else:
-            rgb_ts, rgb_files = read_tum_list(root / "rgb.txt")
-            depth_ts, dfiles = read_tum_list(root / "depth.txt")
-            if len(rgb_ts) == 0 or len(depth_ts) == 0:
-                raise SlamInputError(f"{root}: rgb.txt has {len(rgb_ts)} and depth.txt {len(depth_ts)} entries")
-            order = np.argsort(depth_ts, kind="stable")
-            dts = depth_ts[order]
-            nd = order[_nearest(dts, rgb_ts)] if len(dts) > 1 else np.zeros(len(rgb_ts), dtype=np.int64)
-            keep = np.abs(depth_ts[nd] - rgb_ts) < max_dt
-            n_rgb = len(rgb_ts)
-            rgb_ts = rgb_ts[keep]
-            rgb_files = [f for f, k in zip(rgb_files, keep) if k]
-            depth_files = [dfiles[j] for j, k in zip(nd, keep) if k]
-            source = root / "depth.txt"
-
-        gt_path = next((root / n for n in ("groundtruth.txt", "pose.txt") if (root / n).exists()), None)
-        if gt_path is not None:
-            gt_ts, gt_rows = _read_groundtruth(gt_path)
-            poses, has_gt = _gt_at(gt_ts, gt_rows, rgb_ts, max_dt, interpolate_gt)
-            if not has_gt.all():
-                log.info("%s: %d of %d frames have no ground truth within %.3f s and are dropped",
-                         root, int((~has_gt).sum()), len(has_gt), max_dt)
-        else:
-            # a recording of one's own: SLAM needs no ground truth, only the evaluation does
-            log.warning("%s: no groundtruth.txt (or pose.txt): poses unknown, ATE will not be computed", root)
-            poses = np.full((len(rgb_ts), 4, 4), np.nan)
-            has_gt = np.ones(len(rgb_ts), dtype=bool)
-        keep = has_gt.copy()
+        rgb_ts, rgb_files, depth_files, source, n_rgb, use_file = _pairs(root, association, max_dt)
+        gt_path, gt_ts, poses, keep = _ground_truth(root, rgb_ts, max_dt, interpolate_gt)
         if not use_file and min_dt > 0:
-            last = -np.inf
-            for k in range(len(rgb_ts)):
-                if keep[k]:
-                    if rgb_ts[k] - last < min_dt:
-                        keep[k] = False
-                    else:
-                        last = rgb_ts[k]
+            keep = _spaced(rgb_ts, keep, min_dt)
         if not keep.any():
             # a recording without groundtruth.txt gets here when no colour frame has a depth frame within max_dt
-            gt_span = (f"ground truth {gt_ts[0]:.3f}..{gt_ts[-1]:.3f}" if gt_path is not None and len(gt_ts)
-                       else "no ground truth")
+            gt_span = f"ground truth {gt_ts[0]:.3f}..{gt_ts[-1]:.3f}" if len(gt_ts) else "no ground truth"
             what = "depth and ground truth" if gt_path is not None else "a depth frame"
             raise SlamInputError(
                 f"{source}: empty association: no rgb frame has {what} within {max_dt} s "
@@ -324,31 +287,3 @@ class TUMDataset(RGBDDataset):
         else:
             scale = TUM_DEPTH_SCALE
         return intr, dist, scale
-
-    @staticmethod
-    def _read_associations(path: Path):
-        try:
-            text = path.read_text()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise SlamInputError(f"{path}: cannot read ({exc})") from None
-        rgb_ts, rgb_files, depth_files = [], [], []
-        for lineno, line in enumerate(text.splitlines(), 1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            parts = line.split()
-            if len(parts) < 4:
-                raise SlamInputError(f"{path}:{lineno}: expected 'rgb_ts rgb_file depth_ts depth_file'")
-            a_ts, a_file, b_ts, b_file = parts[:4]
-            if a_file.startswith("depth") and not b_file.startswith("depth"):
-                a_ts, a_file, b_ts, b_file = b_ts, b_file, a_ts, a_file  # written depth-first
-            try:
-                rgb_ts.append(float(a_ts))
-                float(b_ts)
-            except ValueError:
-                raise SlamInputError(f"{path}:{lineno}: bad timestamp") from None
-            rgb_files.append(a_file)
-            depth_files.append(b_file)
-        if not rgb_ts:
-            raise SlamInputError(f"{path}: empty association (no frame pairs)")
-        return np.asarray(rgb_ts), rgb_files, depth_files

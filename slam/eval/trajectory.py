@@ -14,6 +14,7 @@ import numpy as np
 
 from slam.errors import SlamInputError
 from slam.core.geometry import check_rigid, poses_from_tum, poses_to_tum
+from slam.data.tum_format import read_tum_poses
 
 __all__ = [
     "read_tum_trajectory",
@@ -25,50 +26,15 @@ __all__ = [
 ]
 
 
-def _read_rows(path: Path, min_cols: int) -> list[list[str]]:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise SlamInputError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SlamInputError(f"{path}: cannot read ({exc})") from None
-    rows = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.replace(",", " ").split()
-        if len(parts) < min_cols:
-            raise SlamInputError(f"{path}:{lineno}: expected {min_cols} columns, got {len(parts)}")
-        rows.append(parts)
-    return rows
-
-
 def read_tum_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a TUM trajectory file.
 
     Returns ``(timestamps [N] float64 seconds, poses [N, 4, 4] float64 camera-to-world)``, in file order.
     Raises :class:`SlamInputError` for a missing file, a malformed line, an empty trajectory, NaN values or a
-    quaternion far from unit length (a sign of a wrong column order).
+    quaternion far from unit length (a sign of a wrong column order): :func:`slam.data.tum_format.read_tum_poses`,
+    the one reader of the format, which the TUM loader's ground truth goes through too.
     """
-    path = Path(path)
-    rows = _read_rows(path, 8)
-    if not rows:
-        raise SlamInputError(f"{path}: no poses (empty trajectory)")
-    try:
-        data = np.array([[float(v) for v in r[:8]] for r in rows], dtype=np.float64)
-    except ValueError as exc:
-        raise SlamInputError(f"{path}: non-numeric value ({exc})") from None
-    if not np.isfinite(data).all():
-        bad = int(np.flatnonzero(~np.isfinite(data).all(axis=1))[0])
-        raise SlamInputError(f"{path}: pose {bad} (timestamp {data[bad, 0]:.6f}) contains NaN or inf")
-    qn = np.linalg.norm(data[:, 4:8], axis=1)
-    if np.any(np.abs(qn - 1.0) > 0.01):
-        bad = int(np.flatnonzero(np.abs(qn - 1.0) > 0.01)[0])
-        raise SlamInputError(
-            f"{path}: pose {bad} has quaternion norm {qn[bad]:.4f}; expected unit quaternions in the TUM "
-            "column order 'timestamp tx ty tz qx qy qz qw'"
-        )
+    data = read_tum_poses(path)
     return data[:, 0], poses_from_tum(data[:, 1:8])
 
 

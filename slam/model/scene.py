@@ -15,15 +15,13 @@ import tdfields
 from tdfields.step_scale import scaled_param_groups
 from slam.config import Config, FieldSpec
 
-_RANKED = ("cp", "six_axis", "vector_matrix")
-
 
 def field_spec(spec: FieldSpec, aabb: torch.Tensor) -> dict:
     """tdfields multi-resolution spec for one quantity (one level per cell size, same kind/rank/channels)."""
     levels = []
     for cell in spec.cell_sizes:
         level = {"kind": spec.kind, "aabb": aabb.tolist(), "cell_size": float(cell), "channels": int(spec.channels)}
-        if spec.kind in _RANKED:
+        if tdfields.KINDS[spec.kind].has_rank:
             level["rank"] = int(spec.rank)
         if spec.init_std is not None:
             level["init_std"] = float(spec.init_std)

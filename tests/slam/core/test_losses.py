@@ -56,3 +56,43 @@ def test_tracking_outliers():
     rd[3] = 5.0
     keep = tracking_inliers(rd, D, 10.0)
     assert keep.sum() == 9 and not keep[3]
+
+
+def _five_term_sum(s, z, rd, rc, D, C, T, w):
+    """``total_loss`` as it was written before the terms were registered: the reference for bit identity."""
+    m = D > 0
+    parts = sdf_losses(s[m], z[m], D[m], T)
+    parts["depth"] = depth_loss(rd[m], D[m])
+    parts["color"] = color_loss(rc, C)
+    return (w.fs * parts["fs"] + w.center * parts["center"] + w.tail * parts["tail"] + w.depth * parts["depth"]
+            + w.color * parts["color"])
+
+
+def test_total_loss_over_the_registry_is_bit_identical_to_the_five_term_sum():
+    g = torch.Generator().manual_seed(1)
+    D = torch.rand(64, generator=g) * 3 + 0.3
+    D[::6] = 0.0
+    z = D[:, None] + (torch.rand(64, 20, generator=g) - 0.6) * 0.5
+    C = torch.rand(64, 3, generator=g)
+    for w in (LossWeights(fs=10.0, center=200.0, tail=50.0, depth=1.0, color=5.0),
+              LossWeights(fs=5.0, center=200.0, tail=10.0, depth=0.1, color=5.0),
+              LossWeights(fs=0.0, center=200.0, tail=0.0, depth=1.0, color=0.0)):
+        inputs = [torch.tanh(torch.randn(64, 20, generator=g)).requires_grad_(),
+                  (D + 0.1 * torch.randn(64, generator=g)).requires_grad_(),
+                  torch.rand(64, 3, generator=g).requires_grad_()]
+        s, rd, rc = inputs
+        new, parts = total_loss(s, z, rd, rc, D, C, 0.1, w)
+        old = _five_term_sum(s, z, rd, rc, D, C, 0.1, w)
+        assert torch.equal(new, old) and list(parts) == ["fs", "center", "tail", "depth", "color"]
+        for a, b in zip(torch.autograd.grad(new, inputs), torch.autograd.grad(old, inputs)):
+            assert torch.equal(a, b)
+
+
+def test_a_zero_weight_still_adds_its_term():
+    """As before the registry: a NaN term makes the loss NaN even at weight 0 (0 * NaN)."""
+    D = torch.tensor([1.0])
+    z = torch.tensor([[0.5, 1.0]])
+    s = torch.tensor([[0.0, float("nan")]])
+    w = LossWeights(fs=1.0, center=0.0, tail=0.0, depth=0.0, color=0.0)
+    loss, _ = total_loss(s, z, torch.tensor([1.0]), torch.zeros(1, 3), D, torch.zeros(1, 3), 0.1, w)
+    assert torch.isnan(loss)
