@@ -14,7 +14,7 @@ def room0_box():
     return tdfields.enlarge_bounds(ROOM0, 0.24).tolist()
 
 
-# name -> spec; "eslam" = tri-planes, "lrslam" = CP geometry + Six-axis appearance (method.md section 2)
+# name -> spec; "eslam" = tri-planes, "lrslam" = CP geometry + Six-axis appearance (docs/tdfields.md, "The decompositions")
 CONFIGS = {
     "geometry/eslam-triplane": {"kind": "triplane", "cell_size": [0.24, 0.06], "channels": 32},
     "geometry/lrslam-cp": {"kind": "cp", "cell_size": [0.24, 0.06], "channels": 32, "rank": 2},

@@ -55,10 +55,10 @@ def run_setting(name: str, data: Path, frames: int, every: int) -> dict:
     series = []
 
     class Probe(Observer):
-        def on_frame(self, system, rec):
+        def on_frame(self, run, rec):
             if rec.k % every == 0 or rec.k == frames - 1:
-                series.append({"frame": rec.k, "rss_mb": rss_bytes() / 2**20, "keyframes": len(system.keyframes),
-                               "store_mb": system.keyframes.nbytes / 2**20})
+                series.append({"frame": rec.k, "rss_mb": rss_bytes() / 2**20, "keyframes": len(s.keyframes),
+                               "store_mb": s.keyframes.nbytes / 2**20})
 
     t0 = time.perf_counter()
     s = SLAM(cfg, load_data(cfg))

@@ -31,7 +31,7 @@ def sigint_at(k: int):
     from slam.engine.observers import Observer
 
     class SigintAt(Observer):
-        def on_frame(self, system, rec):
+        def on_frame(self, run, rec):
             if rec.k == k:
                 os.kill(os.getpid(), signal.SIGINT)
 

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import torch
 
+from slam.core.camera import backproject
+
 
 @dataclass
 class ICPResult:
@@ -53,7 +55,7 @@ def _vertices(depth: torch.Tensor, fx: float, fy: float, cx: float, cy: float) -
     H, W = depth.shape
     v, u = torch.meshgrid(torch.arange(H, dtype=depth.dtype, device=depth.device),
                           torch.arange(W, dtype=depth.dtype, device=depth.device), indexing="ij")
-    return torch.stack(((u - cx) / fx * depth, (v - cy) / fy * depth, depth), -1)
+    return backproject(u, v, depth, fx, fy, cx, cy)
 
 
 def _normals(vert: torch.Tensor, depth: torch.Tensor, max_jump: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -89,6 +91,54 @@ def _exp_se3(xi: torch.Tensor) -> torch.Tensor:
     T[:3, :3] = R
     T[:3, 3] = t
     return T
+
+
+def _level_points(depth: torch.Tensor, cam: tuple[float, float, float, float],
+                  max_jump: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Points ``[H, W, 3]``, normals ``[H, W, 3]`` and their validity ``[H, W]`` of one pyramid level's depth;
+    ``cam``: that level's ``(fx, fy, cx, cy)``."""
+    vert = _vertices(depth, *cam)
+    nrm, ok = _normals(vert, depth, max_jump)
+    return vert, nrm, ok
+
+
+def _associate(pts: torch.Tensor, pnrm: torch.Tensor, T: torch.Tensor, prev: tuple, cam: tuple, dmax: float,
+               min_cos: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Projective data association: the current frame's points ``pts`` / normals ``pnrm`` ``[P, 3]``, moved by
+    ``T``, matched with the previous level's ``prev = (points, normals, valid)`` at the pixel they project to.
+
+    Returns ``(idx, tgt, nrm, src)``: indices into ``pts`` of the kept matches, their target points and normals,
+    and the moved points (previous camera frame)."""
+    vp, np_, okp = prev
+    lfx, lfy, lcx, lcy = cam
+    H, W = okp.shape
+    q = pts @ T[:3, :3].T + T[:3, 3]  # in the previous camera frame
+    z = q[:, 2]
+    front = z > 1e-6
+    u = torch.round(lfx * q[:, 0] / z.clamp(min=1e-6) + lcx).long()
+    v = torch.round(lfy * q[:, 1] / z.clamp(min=1e-6) + lcy).long()
+    inside = front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    idx = torch.nonzero(inside).flatten()
+    ui, vi = u[idx], v[idx]
+    good = okp[vi, ui]
+    idx, ui, vi = idx[good], ui[good], vi[good]
+    tgt, nrm, src = vp[vi, ui], np_[vi, ui], q[idx]
+    # close, and the current point's normal (rotated) agreeing with the target's: no matches across surfaces
+    close = ((src - tgt).norm(dim=-1) < dmax) & (((pnrm[idx] @ T[:3, :3].T) * nrm).sum(-1) > min_cos)
+    return idx[close], tgt[close], nrm[close], src[close]
+
+
+def _gauss_newton_step(src: torch.Tensor, tgt: torch.Tensor, nrm: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """One robust (Huber) Gauss-Newton step on the point-to-plane residuals of the matches: the ``[6]`` twist
+    that moves ``src`` onto the planes of ``tgt`` / ``nrm``, and the residuals ``[M]`` before it."""
+    r = ((src - tgt) * nrm).sum(-1)
+    J = torch.cat((torch.linalg.cross(src, nrm, dim=-1), nrm), -1)  # d r / d (w, t), left twist
+    scale = 1.4826 * r.abs().median().clamp(min=1e-4)
+    w = 1.0 / torch.clamp(r.abs() / (1.345 * scale), min=1.0)  # Huber weights
+    A = (J * w[:, None]).T @ J
+    b = -(J * w[:, None]).T @ r
+    xi = torch.linalg.solve(A + 1e-6 * torch.eye(6, dtype=A.dtype), b)
+    return xi, r
 
 
 @torch.no_grad()
@@ -130,39 +180,17 @@ def icp_relative_pose(
     for f, n_it, dmax in zip(levels, iters, max_dist):
         p_depth, c_depth = _downsample(dp, f), _downsample(dc, f)
         # pixel (u, v) of the level sits at (f u, f v) of the full image
-        lfx, lfy, lcx, lcy = fx / f, fy / f, cx / f, cy / f
-        H, W = p_depth.shape
-        vp = _vertices(p_depth, lfx, lfy, lcx, lcy)
-        np_, okp = _normals(vp, p_depth, max_jump)
-        vc = _vertices(c_depth, lfx, lfy, lcx, lcy)
-        nc, okc = _normals(vc, c_depth, max_jump)
+        cam = (fx / f, fy / f, cx / f, cy / f)
+        vp, np_, okp = _level_points(p_depth, cam, max_jump)
+        vc, nc, okc = _level_points(c_depth, cam, max_jump)
         pts, pnrm = vc[okc], nc[okc]  # [P, 3] current camera frame
         if pts.shape[0] < 50 or int(okp.sum()) < 50:
             return ICPResult(T.float(), 0.0, float("inf"), False)
         for _ in range(n_it):
-            q = pts @ T[:3, :3].T + T[:3, 3]  # in the previous camera frame
-            z = q[:, 2]
-            front = z > 1e-6
-            u = torch.round(lfx * q[:, 0] / z.clamp(min=1e-6) + lcx).long()
-            v = torch.round(lfy * q[:, 1] / z.clamp(min=1e-6) + lcy).long()
-            inside = front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-            idx = torch.nonzero(inside).flatten()
-            ui, vi = u[idx], v[idx]
-            good = okp[vi, ui]
-            idx, ui, vi = idx[good], ui[good], vi[good]
-            tgt, nrm, src = vp[vi, ui], np_[vi, ui], q[idx]
-            # close, and the current point's normal (rotated) agreeing with the target's: no matches across surfaces
-            close = ((src - tgt).norm(dim=-1) < dmax) & (((pnrm[idx] @ T[:3, :3].T) * nrm).sum(-1) > min_cos)
-            idx, tgt, nrm, src = idx[close], tgt[close], nrm[close], src[close]
+            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos)
             if idx.numel() < 50:
                 return ICPResult(T.float(), idx.numel() / max(pts.shape[0], 1), float("inf"), False)
-            r = ((src - tgt) * nrm).sum(-1)
-            J = torch.cat((torch.linalg.cross(src, nrm, dim=-1), nrm), -1)  # d r / d (w, t), left twist
-            scale = 1.4826 * r.abs().median().clamp(min=1e-4)
-            w = 1.0 / torch.clamp(r.abs() / (1.345 * scale), min=1.0)  # Huber weights
-            A = (J * w[:, None]).T @ J
-            b = -(J * w[:, None]).T @ r
-            xi = torch.linalg.solve(A + 1e-6 * torch.eye(6, dtype=dt), b)
+            xi, r = _gauss_newton_step(src, tgt, nrm)
             T = _exp_se3(xi) @ T
             inl = idx.numel() / pts.shape[0]
             rmse = float(torch.sqrt((r**2).mean()))

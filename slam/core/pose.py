@@ -137,7 +137,17 @@ def constant_velocity(p_prev: torch.Tensor, p_prev2: torch.Tensor) -> torch.Tens
         ``[..., 7]`` extrapolated pose with ``w >= 0``.
     """
     p2 = align_sign(p_prev2, p_prev)
-    out = 2 * p_prev - p2
-    q = out[..., :4]
-    q = q / q.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-    return torch.cat((standardize_quaternion(q), out[..., 4:]), -1)
+    return normalize_pose(2 * p_prev - p2)
+
+
+def normalize_pose(p: torch.Tensor) -> torch.Tensor:
+    """``[..., 7]`` ``(q, t)`` with the quaternion scaled to unit length and ``w >= 0`` (the form a pose is stored
+    in after an optimiser moved it off the unit sphere)."""
+    q = p[..., :4] / p[..., :4].norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    return torch.cat((standardize_quaternion(q), p[..., 4:]), -1)
+
+
+def rotation_angle(R: torch.Tensor) -> torch.Tensor:
+    """Angle in radians (a 0-d tensor of ``R``'s dtype) of a ``[3, 3]`` rotation matrix, e.g. the relative rotation
+    ``R_a^T R_b`` between two cameras; rounding beyond [-1, 1] in the trace is clamped."""
+    return torch.arccos(((R.trace() - 1) / 2).clamp(-1.0, 1.0))

@@ -15,13 +15,10 @@ from typing import Callable
 
 import torch
 
+from slam.core.camera import pixel_directions
+
 SdfFn = Callable[[torch.Tensor], torch.Tensor]
 RgbFn = Callable[[torch.Tensor], torch.Tensor]
-
-
-def pixel_directions(u: torch.Tensor, v: torch.Tensor, fx: float, fy: float, cx: float, cy: float) -> torch.Tensor:
-    """Camera-frame ray directions ``[R, 3]`` with unit z (OpenCV) for pixel coordinates ``u, v`` ``[R]``."""
-    return torch.stack(((u - cx) / fx, (v - cy) / fy, torch.ones_like(u)), -1)
 
 
 def camera_rays(c2w: torch.Tensor, dirs_cam: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -205,30 +202,12 @@ def render_rays(
         inv = ~valid
         if aabb is None:
             raise ValueError("rays without depth need the scene aabb")
-        far = ray_box_exit(origins[inv], dirs[inv], aabb).clamp(min=0.0) + 0.01
-        lin = torch.linspace(0.0, 1.0, n_stratified, dtype=z.dtype, device=z.device)
-        zs = far[:, None] * lin
-        if perturb:
-            zs = _perturb(zs, generator)
-        if n_importance > 0:
-            with torch.no_grad():
-                pts = origins[inv].detach()[:, None] + dirs[inv].detach()[:, None] * zs[..., None]
-                s = sdf_fn(pts.reshape(-1, 3))
-                w = composite_weights(sdf_to_alpha(s.reshape(zs.shape), beta))
-                mids = 0.5 * (zs[..., 1:] + zs[..., :-1])
-                zi = sample_pdf(mids, w[..., 1:-1], n_importance, generator, deterministic=not perturb)
-            zs = torch.sort(torch.cat((zs, zi), -1), -1).values
-        z[inv] = zs
+        z[inv] = _sample_free_rays(origins[inv], dirs[inv], sdf_fn, beta, n_stratified, n_importance, aabb, perturb,
+                                   generator)
     pts = (origins[:, None, :] + dirs[:, None, :] * z[..., None]).reshape(-1, 3)
     sdf = sdf_fn(pts).reshape(R, N)
     w = composite_weights(sdf_to_alpha(sdf, beta))
-    if color_cutoff > 0:
-        keep = (w.detach() > color_cutoff).reshape(-1)
-        rgb = pts.new_zeros(R * N, 3)
-        rgb[keep] = rgb_fn(pts[keep])
-        rgb = rgb.reshape(R, N, 3)
-    else:
-        rgb = rgb_fn(pts).reshape(R, N, 3)
+    rgb = _sample_colors(pts, w, rgb_fn, color_cutoff)
     return RenderOut(
         depth=(w * z).sum(-1),
         color=(w[..., None] * rgb).sum(-2),
@@ -238,18 +217,70 @@ def render_rays(
     )
 
 
-def sample_pixels(
-    height: int, width: int, n: int, edge_h: int = 0, edge_w: int = 0, generator: torch.Generator | None = None
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Uniform random pixels *with replacement* in ``[edge_h, H - edge_h) x [edge_w, W - edge_w)``.
+def _sample_colors(pts: torch.Tensor, w: torch.Tensor, rgb_fn: RgbFn, color_cutoff: float) -> torch.Tensor:
+    """``[R, N, 3]`` colours of the samples ``pts`` ``[R * N, 3]``; with ``color_cutoff > 0`` only samples whose
+    weight ``w`` ``[R, N]`` exceeds it are queried (the others are 0)."""
+    R, N = w.shape
+    if color_cutoff <= 0:
+        return rgb_fn(pts).reshape(R, N, 3)
+    keep = (w.detach() > color_cutoff).reshape(-1)
+    rgb = pts.new_zeros(R * N, 3)
+    rgb[keep] = rgb_fn(pts[keep])
+    return rgb.reshape(R, N, 3)
 
-    Edges too large for the image are reduced so that at least the central pixel remains.
+
+def _sample_free_rays(origins, dirs, sdf_fn: SdfFn, beta, n_stratified: int, n_importance: int, aabb, perturb: bool,
+                      generator) -> torch.Tensor:
+    """Sample depths ``[R, n_stratified + n_importance]`` of rays without a depth reading: stratified over
+    ``[0, t_exit + 0.01]``, then importance samples from a no-grad SDF pass."""
+    far = ray_box_exit(origins, dirs, aabb).clamp(min=0.0) + 0.01
+    lin = torch.linspace(0.0, 1.0, n_stratified, dtype=origins.dtype, device=origins.device)
+    zs = far[:, None] * lin
+    if perturb:
+        zs = _perturb(zs, generator)
+    if n_importance > 0:
+        with torch.no_grad():
+            pts = origins.detach()[:, None] + dirs.detach()[:, None] * zs[..., None]
+            s = sdf_fn(pts.reshape(-1, 3))
+            w = composite_weights(sdf_to_alpha(s.reshape(zs.shape), beta))
+            mids = 0.5 * (zs[..., 1:] + zs[..., :-1])
+            zi = sample_pdf(mids, w[..., 1:-1], n_importance, generator, deterministic=not perturb)
+        zs = torch.sort(torch.cat((zs, zi), -1), -1).values
+    return zs
+
+
+def render_pixels(scene, *, u: torch.Tensor, v: torch.Tensor, depth: torch.Tensor, color: torch.Tensor,
+                  c2w: torch.Tensor, intrinsics, rendering, truncation: float, perturb: bool,
+                  generator: torch.Generator | None, depth_required: bool, min_rays: int = 1):
+    """From pixels to a render: the one path the tracker and the mapper share.
+
+    Rays through pixels ``(u, v)`` of cameras ``c2w`` are kept where the measured surface lies inside the scene
+    box (and, with ``depth_required``, where there is a depth reading), then rendered with :func:`render_rays`.
+
+    Args:
+        scene: anything with ``sdf``, ``rgb``, ``beta`` and ``aabb`` (``[3, 2]`` metres), e.g.
+            :class:`slam.model.scene.SceneModel`.
+        u, v: ``[R]`` pixel columns and rows (integer or float).
+        depth: ``[R]`` measured depth at the pixels in metres (0 = none); color: ``[R, 3]`` RGB in [0, 1].
+        c2w: ``[4, 4]`` camera-to-world, or ``[R, 4, 4]`` one per ray (differentiable: tracking and BA go
+            through it).
+        intrinsics: ``fx, fy, cx, cy`` of the working image (pixels).
+        rendering: the ``rendering`` config (``n_stratified``, ``n_importance``, ``color_cutoff``).
+        truncation: TSDF truncation in metres.
+        min_rays: fewer kept rays than this returns None.
 
     Returns:
-        ``(v, u)`` ``[n]`` long row and column indices (CPU).
+        ``(RenderOut, depth [R'], color [R', 3])`` of the ``R'`` kept rays, or None.
     """
-    edge_h = max(0, min(int(edge_h), (height - 1) // 2))
-    edge_w = max(0, min(int(edge_w), (width - 1) // 2))
-    v = torch.randint(edge_h, height - edge_h, (n,), generator=generator)
-    u = torch.randint(edge_w, width - edge_w, (n,), generator=generator)
-    return v, u
+    dirs_cam = pixel_directions(u.to(depth.dtype), v.to(depth.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                intrinsics.cy)
+    origins, dirs = camera_rays(c2w, dirs_cam)
+    keep = ray_box_exit(origins, dirs, scene.aabb) >= depth
+    if depth_required:
+        keep = (depth > 0) & keep
+    if int(keep.sum()) < min_rays:
+        return None
+    origins, dirs, depth, color = origins[keep], dirs[keep], depth[keep], color[keep]
+    out = render_rays(origins, dirs, depth, scene.sdf, scene.rgb, scene.beta, truncation, rendering.n_stratified,
+                      rendering.n_importance, scene.aabb, perturb, generator, rendering.color_cutoff)
+    return out, depth, color

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from slam.core.camera import pixel_directions
 from slam.data.types import Frame, Intrinsics
 from slam.errors import SlamInputError
 from slam.core.geometry import check_rigid
@@ -68,8 +69,7 @@ def undistort_grid(intr: Intrinsics, dist: Sequence[float]) -> torch.Tensor:
     k1, k2, p1, p2, k3 = (list(dist) + [0.0] * 5)[:5]
     h, w = intr.height, intr.width
     v, u = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
-    x = (u - intr.cx) / intr.fx
-    y = (v - intr.cy) / intr.fy
+    x, y, _ = pixel_directions(u, v, intr.fx, intr.fy, intr.cx, intr.cy).unbind(-1)  # normalised coordinates
     r2 = x * x + y * y
     radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
@@ -84,9 +84,9 @@ class RGBDDataset:
     """A sequence of RGB-D frames on disk; ``ds[i]`` reads and processes frame ``i``.
 
     Subclasses only find the files and poses; this class applies the reference processing order
-    (eslam-pipeline section 10): colour resized to the depth size, colour undistorted (depth is not; it is
-    registered to the colour camera), optional resize to ``crop_size`` (colour bilinear, depth nearest),
-    then ``crop_edge`` pixels removed from every border. ``intrinsics`` follow every step.
+    (docs/data.md, "Common keyword options (every loader)"): colour resized to the depth size, colour undistorted
+    (depth is not; it is registered to the colour camera), optional resize to ``crop_size`` (colour bilinear,
+    depth nearest), then ``crop_edge`` pixels removed from every border. ``intrinsics`` follow every step.
 
     Args (common keyword options of every loader):
         crop_size: ``(H, W)`` to resize to, or None.
@@ -146,8 +146,14 @@ class RGBDDataset:
         if depth_scale <= 0:
             raise SlamInputError(f"{self.root}: depth scale must be positive, got {depth_scale}")
         self.depth_scale = float(depth_scale)
+        self._set_camera(intrinsics, distortion if undistort else None, crop_size, crop_edge)
+        log.debug("opened %r (raw camera %s, distortion %s)", self, intrinsics, self.distortion)
+
+    def _set_camera(self, intrinsics: Intrinsics, distortion: Sequence[float] | None,
+                    crop_size: tuple[int, int] | None, crop_edge: int) -> None:
+        """The raw camera, the distortion to undo (None: none) and the camera after resizing and cropping."""
         self.raw_intrinsics = intrinsics
-        self.distortion = tuple(float(d) for d in distortion) if (distortion is not None and undistort) else None
+        self.distortion = tuple(float(d) for d in distortion) if distortion is not None else None
         self.crop_size = tuple(int(s) for s in crop_size) if crop_size is not None else None
         self.crop_edge = int(crop_edge)
         intr = intrinsics
@@ -160,7 +166,6 @@ class RGBDDataset:
                 raise SlamInputError(f"{self.root}: {exc}") from None
         self.intrinsics = intr
         self._grid = undistort_grid(intrinsics, self.distortion) if self.distortion and any(self.distortion) else None
-        log.debug("opened %r (raw camera %s, distortion %s)", self, intrinsics, self.distortion)
 
     # --- sequence protocol -------------------------------------------------------------------------------
     def __len__(self) -> int:

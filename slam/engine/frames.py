@@ -5,16 +5,23 @@ undistorts and resizes the next ``ahead`` frames and puts them on the run's devi
 current one (image decoding and torch's resampling release the GIL, so this uses the second core). A frame that
 cannot be read (missing, truncated or corrupt file, wrong image size) comes back as a :class:`LoadedFrame` with
 ``error`` set instead of raising, so the loop can skip it like a frame without depth and keep the run.
+
+This module is the one place a run reads its dataset's frames: the loop through :class:`FrameSource`, the set-up
+through :func:`first_readable`, and the automatic box, meshing and the reconstruction metrics through
+:func:`readable_depth`.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
+import logging
 from dataclasses import dataclass
 
 import torch
 
 from slam.errors import SlamInputError
+
+log = logging.getLogger("slam")
 
 
 @dataclass
@@ -59,6 +66,22 @@ def read_frame(dataset, k: int, index: int, shape: tuple[int, int], device: torc
     if device.type == "cuda":
         color, depth = color.pin_memory(), depth.pin_memory()
     return LoadedFrame(k, index, color.to(device, non_blocking=True), depth.to(device, non_blocking=True))
+
+
+def first_readable(dataset, indices: list[int], tries: int):
+    """``(position, frame)``: the first of the first ``tries`` selected frames that loads, as the dataset gives it
+    (its intrinsics and depth set a run up); the bad ones before it are logged.
+
+    Raises:
+        SlamInputError: none of them loads (names the last error)."""
+    last_exc = None
+    for k, i in enumerate(indices[: max(1, tries)]):
+        try:
+            return k, dataset[i]
+        except (SlamInputError, OSError, ValueError) as exc:
+            last_exc = exc
+            log.warning("frame %d: unreadable (%s)", i, exc)
+    raise SlamInputError(f"no readable frame at the start of the sequence: {last_exc}")
 
 
 def readable_depth(dataset, index: int):

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import torch
 
-from slam.core.pose import pose_to_matrix
+from slam.core.camera import pixel_directions
+from slam.core.pose import pose_to_matrix, rotation_angle
 
 
 @dataclass
@@ -31,9 +33,6 @@ class Keyframe:
     @property
     def nbytes(self) -> int:
         return self.color.numel() * self.color.element_size() + self.depth.numel() * self.depth.element_size()
-
-
-STORAGES = ("float32", "compact")
 
 
 def bytes_per_keyframe(height: int, width: int, storage: str = "float32") -> int:
@@ -71,13 +70,32 @@ class KeyframeStore:
             self.frames.pop(self._most_redundant())
             self.dropped += 1
 
+    def state_dict(self) -> dict:
+        """``{"keyframes": [{"k", "pose"}], "keyframes_dropped"}``: positions and poses of the keyframes kept and
+        how many were dropped. The images are not stored: they are read again from the data on load."""
+        return {"keyframes": [{"k": kf.index, "pose": kf.pose.clone()} for kf in self.frames],
+                "keyframes_dropped": self.dropped}
+
+    def load_state_dict(self, state: dict, read: Callable[[int], tuple[torch.Tensor, torch.Tensor]]) -> None:
+        """Replace the keyframes with a :meth:`state_dict`'s; ``read(k)`` gives frame position ``k``'s colour
+        ``[H, W, 3]`` and depth ``[H, W]`` as the loop loaded them."""
+        self.frames.clear()
+        self.dropped = int(state.get("keyframes_dropped", 0))
+        cap, self.max_keyframes = self.max_keyframes, 0  # the stored keyframes are the ones kept: no dropping
+        try:
+            for kf in state["keyframes"]:
+                color, depth = read(kf["k"])
+                self.add(Keyframe(kf["k"], color, depth, kf["pose"].clone()))
+        finally:
+            self.max_keyframes = cap
+
     def _most_redundant(self) -> int:
         T = keyframe_matrices(self.poses())
         best, best_d = 1, float("inf")
         for i in range(1, len(self.frames) - 2):
             a, b = T[i - 1], T[i]
             rel = a[:3, :3].T @ b[:3, :3]
-            angle = float(torch.arccos(((rel.trace() - 1) / 2).clamp(-1.0, 1.0)))
+            angle = float(rotation_angle(rel))
             d = float((a[:3, 3] - b[:3, 3]).norm()) + 0.5 * angle
             if d < best_d:
                 best, best_d = i, d
@@ -128,7 +146,7 @@ def overlapping_keyframes(
     D = depth[vu[:, 0], vu[:, 1]]
     t = torch.linspace(0.0, 1.0, n_samples, dtype=depth.dtype)
     z = 0.8 * D[:, None] + (D[:, None] + 0.5 - 0.8 * D[:, None]) * t  # [P, S]
-    dirs = torch.stack(((u - cx) / fx, (v - cy) / fy, torch.ones_like(u)), -1)
+    dirs = pixel_directions(u, v, fx, fy, cx, cy)
     pts_cam = dirs[:, None, :] * z[..., None]  # [P, S, 3]
     pts = pts_cam.reshape(-1, 3) @ c2w[:3, :3].T + c2w[:3, 3]
     w2c = torch.linalg.inv(keyframe_c2w)  # [K, 4, 4]

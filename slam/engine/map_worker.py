@@ -152,6 +152,39 @@ class MapWorker:
                 f.result()
                 self.wait_s += time.perf_counter() - t0
 
+    def state_dict(self) -> dict:
+        """``{"pending", "applied_any", "track_scene"}``: the calls not yet applied (waited for, with their results
+        and, in parallel mode, the map each left), whether any was applied, and the tracker's copy of the map
+        (parallel mode; None inline, where it is the scene). Plain tensors and numbers."""
+        pending = []
+        for _, item in self._queue:
+            done = item if isinstance(item, MapDone) else item.result()
+            pending.append({"k": done.job.k, "pose": done.job.pose.cpu(), "first": done.job.first,
+                            "keyframe": done.job.keyframe, "seconds": done.seconds,
+                            "result": {"pose": done.result.pose.cpu(), "window": list(done.result.window),
+                                       "loss": float(done.result.loss), "ok": bool(done.result.ok),
+                                       "skipped": int(done.result.skipped)},
+                            "snapshot": done.snapshot})
+        track = ({k: v.detach().cpu() for k, v in self.track_scene.state_dict().items()} if self.parallel else None)
+        return {"pending": pending, "applied_any": bool(self._applied_any), "track_scene": track}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a :meth:`state_dict`: the pending calls are queued as finished (their images are not needed:
+        only their results are applied).
+
+        Raises:
+            RuntimeError: the tracker's map does not fit this scene (another config)."""
+        if state["track_scene"] is not None:
+            with torch.no_grad():
+                self.track_scene.load_state_dict(state["track_scene"])
+        self._applied_any = bool(state["applied_any"])
+        self._queue = []
+        for p in state["pending"]:
+            job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])
+            r = p["result"]
+            res = MapResult(r["pose"], r["window"], r["loss"], r["ok"], r["skipped"])
+            self._queue.append((p["k"], MapDone(job, res, p["seconds"], p["snapshot"])))
+
     def close(self, abort: bool = False) -> None:
         """Shut the worker down; ``abort``: end a call in progress at its next iteration and do not wait for it
         (its work is lost; the map is then unusable, so nothing may be saved from it afterwards)."""

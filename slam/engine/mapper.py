@@ -19,8 +19,9 @@ from slam.config import Config
 from slam.engine.keyframes import KeyframeStore, keyframe_matrices, overlapping_keyframes, select_window
 from slam.core.losses import total_loss
 from slam.core.optim import adam
-from slam.core.pose import pose_to_matrix, standardize_quaternion
-from slam.core.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
+from slam.core.camera import sample_pixels
+from slam.core.pose import normalize_pose, pose_to_matrix
+from slam.core.rendering import render_pixels
 
 
 @dataclass
@@ -49,9 +50,88 @@ def finite_step(loss: torch.Tensor, params: list[torch.Tensor]) -> bool:
     return bool(torch.isfinite(loss) & torch.isfinite(torch.stack(norms)).all())
 
 
-def _normalised(p: torch.Tensor) -> torch.Tensor:
-    q = p[..., :4] / p[..., :4].norm(dim=-1, keepdim=True).clamp(min=1e-12)
-    return torch.cat((standardize_quaternion(q), p[..., 4:]), -1)
+def _window(keyframes: KeyframeStore, depth, pose, intrinsics, mc, generator, first: bool) -> list[int]:
+    """Positions in the store of the keyframes optimised with the current frame (none on the warm-up)."""
+    if first or len(keyframes) == 0:
+        return []
+    if mc.keyframe_selection == "overlap":
+        with torch.no_grad():
+            overlap = overlapping_keyframes(
+                depth.cpu(), pose_to_matrix(pose.cpu()), keyframe_matrices(keyframes.poses()),
+                intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.height,
+                intrinsics.width, mc.overlap_pixels, mc.overlap_samples, 20, generator)
+    else:
+        overlap = torch.ones(len(keyframes), dtype=torch.bool)
+    return select_window(len(keyframes), overlap, mc.window_size, generator)
+
+
+def _window_frames(keyframes: KeyframeStore, window: list[int], index: int, color, depth, pose):
+    """The window's images ``[F, H, W, 3]`` / ``[F, H, W]`` and poses ``[F, 7]`` on the device, and its frame
+    positions, the current frame last."""
+    device = depth.device
+    frames = [keyframes.frames[i] for i in window]
+    frame_ids = [kf.index for kf in frames] + [index]
+    poses0 = torch.stack([kf.pose for kf in frames] + [pose.cpu()]).to(device)
+    colors = torch.stack([c.to(device) for c in [kf.rgb() for kf in frames] + [color]])
+    depths = torch.stack([d.to(device) for d in [kf.metres() for kf in frames] + [depth]])
+    return colors, depths, poses0, frame_ids
+
+
+def _free_poses(frame_ids: list[int], ba: bool) -> torch.Tensor:
+    """``[F]`` which window poses BA optimises: all but the oldest (the gauge) and frame 0 (pinned)."""
+    free = torch.zeros(len(frame_ids), dtype=torch.bool)
+    if ba:
+        free[1:] = True
+        free &= torch.tensor([fid != 0 for fid in frame_ids])
+    return free
+
+
+def _optimiser(scene, cfg: Config, first: bool, poses0, free):
+    """Adam over the scene's groups (and, with BA, the free window poses): ``(optimiser, parameters, cam)``;
+    ``cam`` ``[F_free, 7]`` is None without BA."""
+    mc = cfg.mapping
+    factor = mc.lr_first_factor if first else 1.0
+    # the warm-up starts from the random initialisation, where the step scale is ~40x (CP): plain rates there
+    groups = scene.param_groups(cfg, factor, "none" if first else mc.lr_scaling)
+    cam = None
+    if bool(free.any()):
+        cam = torch.nn.Parameter(poses0[free].clone())
+        groups.append({"params": [cam], "lr": mc.joint_opt_cam_lr})
+    return adam(groups), [p for g in groups for p in g["params"]], cam
+
+
+def _loss(scene, colors, depths, poses, intrinsics, cfg: Config, per_frame: int, generator):
+    """The mapping loss of one iteration: ``per_frame`` fresh pixels of every window frame (None when no ray's
+    surface is inside the box)."""
+    F, H, W = depths.shape
+    device = depths.device
+    v, u = sample_pixels(H, W, per_frame * F, 0, 0, generator)
+    fidx = torch.arange(F).repeat_interleave(per_frame)
+    v, u, fidx = v.to(device), u.to(device), fidx.to(device)
+    rendered = render_pixels(scene, u=u, v=v, depth=depths[fidx, v, u], color=colors[fidx, v, u],
+                             c2w=pose_to_matrix(poses)[fidx], intrinsics=intrinsics, rendering=cfg.rendering,
+                             truncation=cfg.scene.truncation, perturb=cfg.rendering.perturb, generator=generator,
+                             depth_required=False)
+    if rendered is None:
+        return None
+    out, D, C = rendered
+    return total_loss(out.sdf, out.z, out.depth, out.color, D, C, cfg.scene.truncation, cfg.mapping.weights)[0]
+
+
+def _write_back(cam, free, window: list[int], keyframes: KeyframeStore, pose):
+    """BA's refined poses into the window's keyframes; returns the current frame's (``pose`` without BA)."""
+    if cam is None:
+        return pose
+    new = normalize_pose(cam.detach().cpu())
+    if not bool(torch.isfinite(new).all()):
+        return pose
+    refined = pose
+    for k, pos in enumerate(torch.nonzero(free).flatten().tolist()):
+        if pos < len(window):
+            keyframes.frames[window[pos]].pose = new[k].clone()
+        else:
+            refined = new[k].clone()
+    return refined
 
 
 def map_frame(
@@ -82,77 +162,23 @@ def map_frame(
         :class:`MapResult` with the (possibly BA-refined) current pose.
     """
     mc = cfg.mapping
-    device = depth.device
-    H, W = depth.shape
-    T = cfg.scene.truncation
-    weights = mc.weights
-
-    # ---- window
-    window: list[int] = []
-    if not first and len(keyframes) > 0:
-        if mc.keyframe_selection == "overlap":
-            with torch.no_grad():
-                overlap = overlapping_keyframes(
-                    depth.cpu(), pose_to_matrix(pose.cpu()), keyframe_matrices(keyframes.poses()),
-                    intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.height,
-                    intrinsics.width, mc.overlap_pixels, mc.overlap_samples, 20, generator)
-        else:
-            overlap = torch.ones(len(keyframes), dtype=torch.bool)
-        window = select_window(len(keyframes), overlap, mc.window_size, generator)
-
-    colors = [keyframes.frames[i].rgb() for i in window] + [color]
-    depths = [keyframes.frames[i].metres() for i in window] + [depth]
-    frame_ids = [keyframes.frames[i].index for i in window] + [index]
-    poses0 = torch.stack([keyframes.frames[i].pose for i in window] + [pose.cpu()]).to(device)
-    colors = torch.stack([c.to(device) for c in colors])  # [F, H, W, 3]
-    depths = torch.stack([d.to(device) for d in depths])  # [F, H, W]
-    F = len(frame_ids)
-
-    ba = mc.joint_opt and not first and len(keyframes) > mc.ba_min_keyframes
-    free = torch.zeros(F, dtype=torch.bool)
-    if ba:
-        free[1:] = True  # oldest selected frame is the gauge
-        free &= torch.tensor([fid != 0 for fid in frame_ids])
-    factor = mc.lr_first_factor if first else 1.0
-    # the warm-up starts from the random initialisation, where the step scale is ~40x (CP): plain rates there
-    groups = scene.param_groups(cfg, factor, "none" if first else mc.lr_scaling)
-    cam = None
-    if bool(free.any()):
-        cam = torch.nn.Parameter(poses0[free].clone())
-        groups.append({"params": [cam], "lr": mc.joint_opt_cam_lr})
-    opt = adam(groups)
-    params = [p for g in groups for p in g["params"]]
-    steps = skipped = 0
-
-    per_frame = max(mc.pixels // F, 1)
-    iters = mc.iters_first if first else mc.iters
-    last = float("nan")
-    free_dev = free.to(device)
-    for _ in range(iters):
+    window = _window(keyframes, depth, pose, intrinsics, mc, generator, first)
+    colors, depths, poses0, frame_ids = _window_frames(keyframes, window, index, color, depth, pose)
+    free = _free_poses(frame_ids, mc.joint_opt and not first and len(keyframes) > mc.ba_min_keyframes)
+    opt, params, cam = _optimiser(scene, cfg, first, poses0, free)
+    steps, skipped, last = 0, 0, float("nan")
+    per_frame = max(mc.pixels // len(frame_ids), 1)
+    free_dev = free.to(depth.device)
+    for _ in range(mc.iters_first if first else mc.iters):
         if should_stop is not None and should_stop():
             raise MappingAborted(f"mapping call of frame {index} aborted")
+        poses = poses0
         if cam is not None:
             poses = poses0.clone()
             poses[free_dev] = cam
-        else:
-            poses = poses0
-        c2w = pose_to_matrix(poses)  # [F, 4, 4]
-        v, u = sample_pixels(H, W, per_frame * F, 0, 0, generator)
-        fidx = torch.arange(F).repeat_interleave(per_frame)
-        v, u, fidx = v.to(device), u.to(device), fidx.to(device)
-        D = depths[fidx, v, u]
-        C = colors[fidx, v, u]
-        dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
-                                    intrinsics.cy)
-        origins, dirs = camera_rays(c2w[fidx], dirs_cam)
-        keep = ray_box_exit(origins, dirs, scene.aabb) >= D
-        if int(keep.sum()) == 0:
+        loss = _loss(scene, colors, depths, poses, intrinsics, cfg, per_frame, generator)
+        if loss is None:
             break
-        origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
-        out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, scene.beta, T, cfg.rendering.n_stratified,
-                          cfg.rendering.n_importance, scene.aabb, cfg.rendering.perturb, generator,
-                          cfg.rendering.color_cutoff)
-        loss, _ = total_loss(out.sdf, out.z, out.depth, out.color, D, C, T, weights)
         opt.zero_grad(set_to_none=True)
         if not bool(torch.isfinite(loss)):
             skipped += 1  # nothing is stepped: the map (and Adam's state) stay as they were
@@ -165,17 +191,6 @@ def map_frame(
         opt.step()
         steps += 1
         last = float(loss.detach())
-
-    refined = pose
     if steps == 0:
         return MapResult(pose, frame_ids, float("nan"), False, skipped)
-    if cam is not None:
-        new = _normalised(cam.detach().cpu())
-        if bool(torch.isfinite(new).all()):
-            free_pos = torch.nonzero(free).flatten().tolist()
-            for k, pos in enumerate(free_pos):
-                if pos < len(window):
-                    keyframes.frames[window[pos]].pose = new[k].clone()
-                else:
-                    refined = new[k].clone()
-    return MapResult(refined, frame_ids, last, True, skipped)
+    return MapResult(_write_back(cam, free, window, keyframes, pose), frame_ids, last, True, skipped)

@@ -1,9 +1,11 @@
-"""Hooks a SLAM run calls as it goes, for viewers, loggers and live plots that the loop itself knows nothing of.
+"""Hooks a SLAM run calls as it goes: viewers, loggers, live plots, periodic checkpoints and stop conditions, all
+things the loop itself knows nothing of.
 
-An observer implements any of :meth:`Observer.on_start`, :meth:`Observer.on_frame` and
-:meth:`Observer.on_finish` (the defaults do nothing). The loop (:meth:`slam.engine.system.SLAM.run`) calls
-``on_frame`` after every frame; :func:`slam.run.runner.run_to_folder` calls ``on_start`` before the first frame and
-``on_finish`` once the outputs are written, then ``close``. An observer must not change the system it is handed.
+An observer implements any of :meth:`Observer.on_start`, :meth:`Observer.on_frame`, :meth:`Observer.on_finish`
+and :meth:`Observer.stop_requested` (the defaults do nothing). The loop (:meth:`slam.engine.system.SLAM.run`) calls
+``on_frame`` after every frame, then asks every observer whether to stop; :func:`slam.run.runner.run_to_folder`
+calls ``on_start`` before the first frame and ``on_finish`` once the outputs are written, then ``close``. Each hook
+gets a read-only :class:`slam.engine.view.RunView` of the run, never the system.
 """
 
 from __future__ import annotations
@@ -43,13 +45,19 @@ class FrameRecord:
 class Observer:
     """Base class of run observers; override what you need."""
 
-    def on_start(self, system) -> None:
-        """Before the first frame; ``system`` is the :class:`slam.engine.system.SLAM` about to run."""
+    def on_start(self, run) -> None:
+        """Before the first frame (of this process: a resumed run has frames done); ``run``: a
+        :class:`slam.engine.view.RunView`."""
 
-    def on_frame(self, system, record: FrameRecord) -> None:
-        """After every frame."""
+    def on_frame(self, run, record: FrameRecord) -> None:
+        """After every frame, in the order the observers were given."""
 
-    def on_finish(self, system, metrics: dict, mesh=None) -> None:
+    def stop_requested(self) -> bool:
+        """Asked after every frame's ``on_frame`` calls: True ends the loop there, as an interrupt does (the run
+        writes its partial outputs and can be resumed)."""
+        return False
+
+    def on_finish(self, run, metrics: dict, mesh=None) -> None:
         """After the outputs are written: the run's metrics dict and its mesh (``trimesh.Trimesh``) or None."""
 
     def close(self) -> None:

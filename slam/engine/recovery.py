@@ -29,7 +29,7 @@ import torch
 
 from slam.core.odometry import icp_relative_pose, pyramid
 from slam.core.pose import matrix_to_pose, pose_to_matrix
-from slam.core.rendering import sample_pixels
+from slam.core.camera import sample_pixels
 from slam.engine.tracker import TrackResult, evaluate_pose, track_frame
 from slam.engine.tracking_guard import TrackingGuard, motion
 

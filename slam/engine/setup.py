@@ -26,19 +26,18 @@ def resolve_device(name: str) -> torch.device:
 
 def load_data(cfg: Config):
     """Open the dataset the config names (the bundled synthetic sequence when ``data.path`` is null)."""
-    from slam.data import load_dataset
-    from slam.data.loader import detect_layout
+    from slam.data import detect_layout, load_dataset
+    from slam.data.registry import dataset_kind
 
     path = cfg.data.path
-    kind = cfg.data.kind
+    # the layout a folder of the named dataset is detected as (the synthetic room's is Replica's)
+    kind = "auto" if cfg.data.kind == "auto" else dataset_kind(cfg.data.kind).detected_as
     if path is None:
-        if kind not in ("auto", "synthetic", "replica"):
+        if kind not in ("auto", dataset_kind("synthetic").detected_as):
             raise SlamInputError(f"preset '{cfg.name}' reads {kind} data: pass its folder with --data PATH")
         from slam.data.synthetic import default_sequence
 
         path = str(default_sequence())
-    if kind == "synthetic":
-        kind = "replica"
     p = Path(path).expanduser()
     if not p.exists():
         raise SlamInputError(f"data folder not found: {p}")
@@ -55,6 +54,30 @@ def load_data(cfg: Config):
     if len(ds) == 0:
         raise SlamInputError(f"{p}: the dataset has no frames")
     return ds
+
+
+def check_edges(cfg: Config, height: int, width: int) -> None:
+    """``tracking.ignore_edge`` must leave pixels to track in the working image (it is only known once the first
+    frame is read, so the config loader cannot check it)."""
+    rows, cols = cfg.tracking.ignore_edge
+    if 2 * rows >= height or 2 * cols >= width:
+        raise SlamInputError(
+            f"config key 'tracking.ignore_edge' = {cfg.tracking.ignore_edge} leaves no pixel to track in the "
+            f"{height}x{width} working image: rows must be < {(height + 1) // 2}, columns < {(width + 1) // 2}")
+
+
+def initial_pose(gt: torch.Tensor | None, indices: list[int]) -> tuple[torch.Tensor, str]:
+    """The first frame's ``[4, 4]`` camera-to-world and where it comes from: its ground truth ``gt[0]`` when finite
+    (ESLAM pins frame 0 to it), else the first finite ground-truth pose of the sequence (ScanNet marks some as
+    invalid), else the identity. ``gt``: ``[N, 4, 4]`` of the selected frames, or None."""
+    if gt is not None:
+        ok = torch.isfinite(gt).flatten(1).all(1)
+        if bool(ok[0]):
+            return gt[0].clone(), "ground truth"
+        if bool(ok.any()):
+            j = int(torch.nonzero(ok)[0])
+            return gt[j].clone(), f"ground truth of frame {indices[j]} (frame {indices[0]}'s is invalid)"
+    return torch.eye(4), "identity (no ground truth)"
 
 
 def frame_indices(n: int, cfg: Config) -> list[int]:

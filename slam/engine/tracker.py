@@ -20,8 +20,9 @@ import tdfields
 from slam.config import Config
 from slam.core.losses import total_loss, tracking_inliers
 from slam.core.optim import VectorAdam
-from slam.core.pose import pose_to_matrix, standardize_quaternion
-from slam.core.rendering import camera_rays, pixel_directions, ray_box_exit, render_rays, sample_pixels
+from slam.core.pose import normalize_pose, pose_to_matrix
+from slam.core.camera import sample_pixels
+from slam.core.rendering import render_pixels
 
 
 @dataclass
@@ -44,18 +45,12 @@ def _loss_at(scene, color, depth, intrinsics, c2w, cfg: Config, v, u, generator,
     Returns ``(loss, inlier share, message)``; ``loss`` is None (and ``message`` says why) when too few rays are
     left or the rendering is not finite."""
     tc = cfg.tracking
-    D = depth[v, u]
-    C = color[v, u]
-    dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
-                                intrinsics.cy)
-    origins, dirs = camera_rays(c2w, dirs_cam)
-    keep = (D > 0) & (ray_box_exit(origins, dirs, scene.aabb) >= D)
-    if int(keep.sum()) < 10:
+    rendered = render_pixels(scene, u=u, v=v, depth=depth[v, u], color=color[v, u], c2w=c2w, intrinsics=intrinsics,
+                             rendering=cfg.rendering, truncation=cfg.scene.truncation, perturb=perturb,
+                             generator=generator, depth_required=True, min_rays=10)
+    if rendered is None:
         return None, 0.0, "too few rays with valid depth inside the scene box"
-    origins, dirs, D, C = origins[keep], dirs[keep], D[keep], C[keep]
-    out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, scene.beta, cfg.scene.truncation,
-                      cfg.rendering.n_stratified, cfg.rendering.n_importance, scene.aabb, perturb, generator,
-                      cfg.rendering.color_cutoff)
+    out, D, C = rendered
     if not bool(torch.isfinite(out.depth).all()):
         return None, 0.0, "non-finite rendered depth"
     inl = tracking_inliers(out.depth, D, tc.outlier_factor)
@@ -92,17 +87,12 @@ def track_frame(
         :class:`TrackResult` with the best-loss pose.
     """
     tc = cfg.tracking
-    iters = tc.iters if iters is None else iters
-    patience = tc.patience if patience is None else patience
-    device = depth.device
-    H, W = depth.shape
+    iters, patience = (tc.iters if iters is None else iters), (tc.patience if patience is None else patience)
+    device, (H, W) = depth.device, depth.shape
     pose = init_pose.clone().to(device).requires_grad_(True)  # [qw qx qy qz tx ty tz]
     lrs = torch.tensor([tc.lr_r] * 4 + [tc.lr_t] * 3, dtype=pose.dtype, device=device)
     opt = VectorAdam(pose, lrs, betas=(0.5, 0.999))
-    best_loss = float("inf")
-    best_pose = None
-    best_inliers = float("nan")
-    message = ""
+    best_loss, best_pose, best_inliers, message = float("inf"), None, float("nan"), ""
     it = since_best = 0
     with tdfields.frozen(scene):  # no scene gradients; Six-axis caches its planes for this call only
         for it in range(1, iters + 1):
@@ -130,9 +120,7 @@ def track_frame(
                 break
     if best_pose is None or not bool(torch.isfinite(best_pose).all()):
         return TrackResult(init_pose.clone(), float("nan"), False, message or "no finite pose", it)
-    q_n = best_pose[:4] / best_pose[:4].norm().clamp(min=1e-12)
-    best_pose = torch.cat((standardize_quaternion(q_n), best_pose[4:]))
-    return TrackResult(best_pose.cpu(), best_loss, True, message, it, best_inliers)
+    return TrackResult(normalize_pose(best_pose).cpu(), best_loss, True, message, it, best_inliers)
 
 
 @torch.no_grad()

@@ -18,7 +18,7 @@ from collections import deque
 
 import torch
 
-from slam.core.pose import pose_to_matrix
+from slam.core.pose import pose_to_matrix, rotation_angle
 
 HISTORY = 10  # accepted frames whose loss makes "recent"
 
@@ -27,7 +27,7 @@ def motion(prev: torch.Tensor, new: torch.Tensor) -> tuple[float, float]:
     """Translation (metres) and rotation (degrees) between two ``[7]`` camera-to-world poses."""
     a, b = pose_to_matrix(prev.double()), pose_to_matrix(new.double())
     rel = a[:3, :3].T @ b[:3, :3]
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(rel.trace()) - 1) / 2))))
+    angle = math.degrees(float(rotation_angle(rel)))
     return float((a[:3, 3] - b[:3, 3]).norm()), angle
 
 
@@ -77,8 +77,11 @@ class TrackingGuard:
         self.losses.clear()
         self.accept(loss)
 
-    def state(self) -> list[float]:
-        return list(self.losses)
+    def state_dict(self) -> dict:
+        """``{"losses": [...]}``: the history of accepted losses."""
+        return {"losses": list(self.losses)}
 
-    def load(self, losses: list[float]) -> None:
+    def load_state_dict(self, state: dict | list) -> None:
+        """Restore a :meth:`state_dict` (or the bare list of losses that run checkpoints before it stored)."""
+        losses = state["losses"] if isinstance(state, dict) else state
         self.losses = deque((float(v) for v in losses), maxlen=HISTORY)

@@ -10,7 +10,9 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import torch
 
+from slam.core.camera import pixel_directions
 from slam.errors import SlamInputError
 
 __all__ = ["load_mesh", "reconstruction_metrics", "icp_align", "align_mesh", "depth_l1", "render_depth", "look_at"]
@@ -160,7 +162,7 @@ def render_depth(mesh, pose: np.ndarray, height: int, width: int, fx: float, fy:
     if intersector is None:
         intersector = _intersector(mesh)
     v, u = np.meshgrid(np.arange(height, dtype=np.float64), np.arange(width, dtype=np.float64), indexing="ij")
-    cam = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1).reshape(-1, 3)
+    cam = pixel_directions(torch.from_numpy(u), torch.from_numpy(v), fx, fy, cx, cy).numpy().reshape(-1, 3)
     dirs = cam @ pose[:3, :3].T  # unnormalised: the hit distance along it is the z-depth
     origins = np.broadcast_to(pose[:3, 3], dirs.shape)
     scene = getattr(intersector, "_scene", None)

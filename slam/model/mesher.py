@@ -15,6 +15,7 @@ from scipy.spatial import ConvexHull, QhullError
 from skimage import measure
 
 import tdfields
+from slam.core.camera import backproject
 
 
 def hull_points(depths: list[torch.Tensor], c2ws: list[torch.Tensor], intrinsics, per_frame: int = 2000,
@@ -36,9 +37,8 @@ def hull_points(depths: list[torch.Tensor], c2ws: list[torch.Tensor], intrinsics
             pick = torch.randint(0, valid.shape[0], (min(per_frame, valid.shape[0]),), generator=generator)
             vu = valid[pick]
             z = D[vu[:, 0], vu[:, 1]]
-            x = (vu[:, 1].float() - intrinsics.cx) / intrinsics.fx * z
-            y = (vu[:, 0].float() - intrinsics.cy) / intrinsics.fy * z
-            cam = torch.stack((x, y, z), -1)
+            cam = backproject(vu[:, 1].float(), vu[:, 0].float(), z, intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                              intrinsics.cy)
             pts.append((cam @ T[:3, :3].T + T[:3, 3]).numpy())
         pts.append(T[:3, 3].numpy()[None])
     return np.concatenate(pts, 0).astype(np.float64)
@@ -158,38 +158,40 @@ def _extract(scene, bound, resolution, batch, hull, device) -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=rgba, process=False)
 
 
-def run_hull_points(system) -> np.ndarray:
+def run_hull_points(run, keyframes=None) -> np.ndarray:
     """``[P, 3]`` world points of a run's visibility hull: back-projected keyframe depth and the keyframes' camera
-    centres (stored in the checkpoint, so ``lrslam mesh`` needs no data). ``system``: a :class:`slam.engine.system.SLAM`."""
-    kf_c2w = [torch.from_numpy(T) for T in system.keyframe_poses()]
-    return hull_points([kf.metres() for kf in system.keyframes.frames], kf_c2w, system.intr,
-                       system.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(system.cfg.seed))
+    centres (stored in the checkpoint, so ``lrslam mesh`` needs no data).
+
+    Args:
+        run: a :class:`slam.engine.view.RunView`.
+        keyframes: its :meth:`~slam.engine.view.RunView.keyframes` snapshot, when the caller already took one.
+    """
+    kfs = run.keyframes() if keyframes is None else keyframes
+    return hull_points(list(kfs.depths), [torch.from_numpy(T) for T in kfs.poses], run.intrinsics,
+                       run.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(run.cfg.seed))
 
 
-def run_mesh(system, resolution: float | None = None, cull: bool | None = None) -> trimesh.Trimesh:
-    """A run's mesh with its config's meshing settings, from the map the tracker reads (mid-run: the latest one the
-    schedule has handed over; at the end: the final map): marching cubes inside the visibility hull, then (unless
-    ``cull`` is False) culled with every processed frame's estimated pose, and depth where the config asks for the
-    depth test; unreadable frames do not count as views."""
+def run_mesh(run, resolution: float | None = None, cull: bool | None = None) -> trimesh.Trimesh:
+    """A run's mesh with its config's meshing settings (``run``: a :class:`slam.engine.view.RunView`), from the map
+    the tracker reads (mid-run: the latest one the schedule has handed over; at the end: the final map): marching
+    cubes inside the visibility hull, then (unless ``cull`` is False) culled with every processed frame's estimated
+    pose, and depth where the config asks for the depth test; unreadable frames do not count as views."""
     from slam.eval import cull_mesh
 
-    mcfg = system.cfg.meshing
-    system.mapper.wait_idle()  # parallel mode: the keyframes (hull) are the mapper's while a call runs
-    pts = run_hull_points(system)
+    mcfg = run.cfg.meshing
+    pts = run_hull_points(run)  # waits for a mapping call in progress (the keyframes are the mapper's)
     hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
-    # the tracker's copy of the map: the loop's thread owns it (after finish() it equals the mapper's scene)
-    scene = system.mapper.track_scene
-    mesh = extract_mesh(scene, system.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, system.device)
+    mesh = extract_mesh(run.scene, run.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, run.device)
     if not (mcfg.cull if cull is None else cull) or not len(mesh.faces):
         return mesh
-    poses = system.poses_matrix().copy()
+    poses = run.poses().copy()
     depths = None
     if mcfg.cull_depth_test:
         depths = []
         for k in range(len(poses)):
-            d = system._depth_or_none(k)
+            d = run.read_depth(k)
             if d is None:
                 poses[k] = np.nan
-                d = np.zeros((system.intr.height, system.intr.width), np.float32)
+                d = np.zeros((run.intrinsics.height, run.intrinsics.width), np.float32)
             depths.append(np.asarray(d, dtype=np.float32))
-    return cull_mesh(mesh, poses, system.intr, depths=depths, truncation=system.cfg.scene.truncation)
+    return cull_mesh(mesh, poses, run.intrinsics, depths=depths, truncation=run.cfg.scene.truncation)

@@ -17,77 +17,40 @@ leaves one to resume from. ``--resume`` refuses a checkpoint whose config is not
 
 from __future__ import annotations
 
-import dataclasses
+import logging
 import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from slam.config.load import differing_keys, flatten
 from slam.errors import SlamInputError
 from slam.files import replacing
-from slam.engine.keyframes import Keyframe
-from slam.engine.map_worker import MapDone, MapJob
-from slam.engine.mapper import MapResult
 
 RUN_FORMAT = "lrslam-run/1"
 
-
-def fingerprint(system) -> dict:
-    """What must not change between a run and its resume: the frames processed and their files."""
-    ds = system.ds
-    names = []
-    for attr in ("color_paths", "depth_paths"):
-        paths = getattr(ds, attr, None)
-        if paths:
-            names += [Path(paths[i]).name for i in (system.indices[0], system.indices[-1])]
-    return {"frames": len(system.indices), "dataset_frames": len(ds), "files": names}
+log = logging.getLogger("slam")
 
 
-def _numpy_state() -> dict:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
-    return {"keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos), "has_gauss": int(has_gauss),
-            "cached": float(cached)}
+def checkpoint_extra(run) -> dict:
+    """What a scene checkpoint records of a run (``run``: a :class:`slam.engine.view.RunView`): poses, frames,
+    bounds, intrinsics, keyframes and the visibility hull's points (so ``lrslam mesh`` needs no data)."""
+    from slam.model.mesher import run_hull_points
 
-
-def _set_numpy_state(s: dict) -> None:
-    np.random.set_state(("MT19937", s["keys"].numpy().astype(np.uint32), s["pos"], s["has_gauss"], s["cached"]))
-
-
-def run_state(system) -> dict:
-    """The loop's state as plain tensors and numbers (``torch.load(weights_only=True)`` can read it back).
-
-    Call between frames; pending mapping calls are waited for (not applied: the schedule applies them)."""
-    mapper = system.mapper
-    pending = []
-    for k, item in mapper._queue:
-        done = item if isinstance(item, MapDone) else item.result()
-        pending.append({"k": done.job.k, "pose": done.job.pose.cpu(), "first": done.job.first,
-                        "keyframe": done.job.keyframe, "seconds": done.seconds,
-                        "result": {"pose": done.result.pose.cpu(), "window": list(done.result.window),
-                                   "loss": float(done.result.loss), "ok": bool(done.result.ok),
-                                   "skipped": int(done.result.skipped)},
-                        "snapshot": done.snapshot})
-    st = dataclasses.asdict(system.state)
-    st["est"] = torch.stack(system.state.est) if system.state.est else torch.zeros(0, 7)
-    out = {
-        "format": RUN_FORMAT,
-        "next": len(system.state.est),
-        "state": st,
-        "keyframes": [{"k": kf.index, "pose": kf.pose.clone()} for kf in system.keyframes.frames],
-        "keyframes_dropped": system.keyframes.dropped,
-        "rng": {"torch": torch.get_rng_state(), "numpy": _numpy_state(), "gen": system.gen.get_state(),
-                "map_gen": system.map_gen.get_state()},
-        "pending": pending,
-        "applied_any": bool(mapper._applied_any),
-        "guard": system.guard.state(),
-        "track_scene": ({k: v.detach().cpu() for k, v in mapper.track_scene.state_dict().items()}
-                        if mapper.parallel else None),
-        "fingerprint": fingerprint(system),
+    kfs = run.keyframes()
+    return {
+        "poses": torch.from_numpy(run.poses()).float(),
+        "frame_indices": list(run.indices),
+        "timestamps": [float(t) for t in run.timestamps] if run.timestamps is not None else [],
+        "bound": run.bound,
+        "marching_cubes_bound": [list(map(float, r)) for r in run.mc_bound],
+        "aabb": run.aabb.tolist(),
+        "intrinsics": run.intrinsics.as_dict(),
+        "keyframe_indices": [int(run.indices[k]) for k in kfs.positions],
+        "keyframe_poses": torch.from_numpy(kfs.poses).float(),
+        "hull_points": torch.from_numpy(run_hull_points(run, kfs)).float(),
     }
-    return out
 
 
 def previous_path(path: Path) -> Path:
@@ -120,9 +83,9 @@ def save_checkpoint(system, path: Path) -> None:
     import tdfields
 
     path = Path(path)
-    system.mapper.wait_idle()  # the scene and the keyframes are the worker's while a call runs
-    extra = system.checkpoint_extra()
-    extra["run"] = run_state(system)
+    run = system.state_dict()  # waits for a mapping call in progress: the scene and keyframes are its until then
+    extra = checkpoint_extra(system.view())
+    extra["run"] = {"format": RUN_FORMAT, "next": len(system.state.est), **run}
     with replacing(path, "checkpoint") as tmp:
         tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=extra)
         _keep_previous(path)
@@ -163,7 +126,12 @@ def load_run(path: Path, cfg=None) -> dict:
         raise SlamInputError(f"{path}: this checkpoint holds no resumable run state of format {RUN_FORMAT} "
                              f"(found {found or 'none'}: written by another version?)")
     if cfg is not None:
-        diff = config_differences(ckpt.get("config") or {}, cfg.to_dict())
+        written = ckpt.get("config") or {}
+        added = sorted(set(flatten(cfg.to_dict())) - set(flatten(written))) if written else []
+        if added:  # keys this version has and the checkpoint's did not: they keep their defaults
+            log.warning("%s was written by an earlier version; keys it did not have take their defaults: %s", path,
+                        ", ".join(f"{k}={flatten(cfg.to_dict())[k]!r}" for k in added))
+        diff = config_differences(written, cfg.to_dict(), ignore=tuple(added))
         if diff:
             raise SlamInputError(
                 f"{path} was written under another config than {path.parent / 'config.yaml'} ({'; '.join(diff[:4])}"
@@ -176,11 +144,11 @@ def load_run(path: Path, cfg=None) -> dict:
 RESUME_KEYS = ("device", "data.max_bad_fraction", "data.prefetch", "checkpoint_every", "checkpoint_interval_s")
 
 
-def config_differences(a: dict, b: dict) -> list[str]:
+def config_differences(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> list[str]:
     """``"key: A vs B"`` for every dotted key whose value differs between two config dicts (outside
-    :data:`RESUME_KEYS`)."""
+    :data:`RESUME_KEYS` and ``ignore``)."""
     fa, fb = flatten(a), flatten(b)
-    return [f"{k}: {fa.get(k)!r} vs {fb.get(k)!r}" for k in differing_keys(a, b, RESUME_KEYS)]
+    return [f"{k}: {fa.get(k)!r} vs {fb.get(k)!r}" for k in differing_keys(a, b, RESUME_KEYS + tuple(ignore))]
 
 
 def restore(system, ckpt: dict) -> int:
@@ -198,42 +166,5 @@ def restore(system, ckpt: dict) -> int:
 
 def _restore(system, ckpt: dict) -> int:
     run = ckpt["extra"]["run"]
-    if run["fingerprint"] != fingerprint(system):
-        raise SlamInputError(f"the data differ from the checkpointed run's ({run['fingerprint']} vs "
-                             f"{fingerprint(system)}): resume with the same data folder and config")
-    try:
-        with torch.no_grad():
-            system.scene.load_state_dict(ckpt["state_dict"])
-            if run["track_scene"] is not None:
-                system.mapper.track_scene.load_state_dict(run["track_scene"])
-    except RuntimeError as exc:  # missing keys or other shapes: not this config's scene
-        first = str(exc).strip().splitlines()[0]
-        raise SlamInputError(f"the checkpoint's scene does not fit this run's config ({first})") from None
-    st = dict(run["state"])
-    est = st.pop("est")
-    system.state = type(system.state)(**st)
-    system.state.est = [p.clone() for p in est]
-    system.keyframes.frames.clear()
-    system.keyframes.dropped = int(run.get("keyframes_dropped", 0))
-    cap = system.keyframes.max_keyframes
-    system.keyframes.max_keyframes = 0  # the checkpoint's keyframes are the ones kept: no dropping while restoring
-    for kf in run["keyframes"]:
-        frame = system.frames.get(kf["k"])
-        if not frame.ok:
-            raise SlamInputError(f"keyframe {kf['k']} can no longer be read: {frame.error}")
-        system.keyframes.add(Keyframe(kf["k"], frame.color.cpu(), frame.depth.cpu(), kf["pose"].clone()))
-    system.keyframes.max_keyframes = cap
-    if system.state.prev_depth_k >= 0:
-        system._prev_depth = system.frames.get(system.state.prev_depth_k).depth
-    system.mapper._applied_any = bool(run["applied_any"])
-    system.guard.load(run["guard"])
-    for p in run["pending"]:
-        job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])
-        r = p["result"]
-        res = MapResult(r["pose"], r["window"], r["loss"], r["ok"], r["skipped"])
-        system.mapper._queue.append((p["k"], MapDone(job, res, p["seconds"], p["snapshot"])))
-    torch.set_rng_state(run["rng"]["torch"])
-    _set_numpy_state(run["rng"]["numpy"])
-    system.gen.set_state(run["rng"]["gen"])
-    system.map_gen.set_state(run["rng"]["map_gen"])
+    system.load_state_dict(run, ckpt["state_dict"])
     return int(run["next"])

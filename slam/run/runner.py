@@ -106,10 +106,11 @@ def resume_config(out: str | Path, overrides: dict | None = None) -> Config:
 def _partial_outputs(system: SLAM, out: Path, error: str | None = None, checkpoint: bool = True) -> dict:
     if checkpoint:
         save_checkpoint(system, out / "checkpoint.pt")
+    run = system.view()
     if system.state.est:
-        write_trajectories(system, out)
-        write_frames(system, out)
-    metrics = trajectory_metrics(system, out)
+        write_trajectories(run, out)
+        write_frames(run, out)
+    metrics = trajectory_metrics(run, out)
     metrics.update(partial=True, frames_done=len(system.state.est), frames_total=len(system.indices))
     if error:
         metrics["error"] = error
@@ -152,19 +153,20 @@ def run_to_folder(cfg: Config, out: str | Path, progress: bool = True, mesh: boo
         if ckpt is not None:
             log.warning("resuming %s from frame %d of %d", out, start, len(system.indices))
         for obs in observers:
-            obs.on_start(system)
+            obs.on_start(system.view())
         _loop(system, out, cfg, start, progress, observers, stop_after, stop_file)
         t_loop = time.perf_counter() - t_start
-        write_trajectories(system, out)
-        write_frames(system, out)
+        run = system.view()
+        write_trajectories(run, out)
+        write_frames(run, out)
         save_checkpoint(system, out / "checkpoint.pt")
-        metrics = trajectory_metrics(system, out)
+        metrics = trajectory_metrics(run, out)
         metrics.update(loop_s=t_loop, resumed_from=start if ckpt is not None else None,
                        mapping_wait_s=system.mapper.wait_s, snapshot_s=system.mapper.snapshot_s)
-        m = write_mesh(system, out, metrics) if mesh else None
+        m = write_mesh(run, out, metrics) if mesh else None
         write_metrics(metrics, out)
         for obs in observers:
-            obs.on_finish(system, metrics, m)
+            obs.on_finish(run, metrics, m)
     except BaseException as exc:
         abort = not isinstance(exc, Exception)  # a second Ctrl-C (KeyboardInterrupt): do not wait for anything
         raise
@@ -176,28 +178,47 @@ def run_to_folder(cfg: Config, out: str | Path, progress: bool = True, mesh: boo
     return metrics
 
 
+class Checkpoints(Observer):
+    """Writes ``path`` every ``checkpoint_every`` frames (or, with 0, once ``checkpoint_interval_s`` seconds have
+    passed since the last one), never after the last frame (the run's end writes it)."""
+
+    def __init__(self, system: SLAM, path: Path, cfg: Config, start: int):
+        self.system, self.path, self.cfg = system, path, cfg
+        self.t, self.k = time.perf_counter(), start
+
+    def on_frame(self, run, record) -> None:
+        k, every = record.k, self.cfg.checkpoint_every
+        due = (k + 1 - self.k >= every) if every > 0 else (time.perf_counter() - self.t >= self.cfg.checkpoint_interval_s)
+        if due and k + 1 < len(run.indices):
+            save_checkpoint(self.system, self.path)
+            self.t, self.k = time.perf_counter(), k + 1
+
+
+class StopWhen(Observer):
+    """Asks the loop to stop after a frame once ``stop_after`` frames are done, ``stop_file`` exists, or a signal
+    was caught (``caught`` non-empty)."""
+
+    def __init__(self, stop_after: int | None, stop_file: str | Path | None, caught: list[int]):
+        self.stop_after, self.stop_file, self.caught = stop_after, stop_file, caught
+        self.done = 0
+
+    def on_frame(self, run, record) -> None:
+        self.done = run.done
+
+    def stop_requested(self) -> bool:
+        if self.stop_after is not None and self.done >= self.stop_after:
+            return True
+        if self.stop_file is not None and Path(self.stop_file).exists():
+            return True
+        return bool(self.caught)
+
+
 def _loop(system: SLAM, out: Path, cfg: Config, start: int, progress: bool, observers, stop_after, stop_file):
     """The frames from ``start``, with periodic checkpoints; on a stop, the partial outputs and RunInterrupted."""
-    last_ckpt = {"t": time.perf_counter(), "k": start}
-
-    def periodic(k: int) -> None:
-        every, now = cfg.checkpoint_every, time.perf_counter()
-        due = (k + 1 - last_ckpt["k"] >= every) if every > 0 else (now - last_ckpt["t"] >= cfg.checkpoint_interval_s)
-        if due and k + 1 < len(system.indices):
-            save_checkpoint(system, out / "checkpoint.pt")
-            last_ckpt.update(t=time.perf_counter(), k=k + 1)
-
     with _signals_caught() as caught:
-        def should_stop() -> bool:
-            if stop_after is not None and len(system.state.est) >= stop_after:
-                return True
-            if stop_file is not None and Path(stop_file).exists():
-                return True
-            return bool(caught)
-
+        own = [Checkpoints(system, out / "checkpoint.pt", cfg, start), StopWhen(stop_after, stop_file, caught)]
         try:
-            system.run(progress=progress, observers=observers, start=start, should_stop=should_stop,
-                       on_frame=periodic)
+            system.run(progress=progress, observers=[*observers, *own], start=start)
         except Exception as exc:
             # the last checkpoint stays: this state may be the one that failed (too many bad frames)
             _partial_outputs(system, out, error=f"{type(exc).__name__}: {exc}", checkpoint=False)

@@ -171,20 +171,20 @@ class RerunObserver(Observer):
         self.log_s = 0.0
 
     # ------------------------------------------------------------------------------------------- observer
-    def on_start(self, system) -> None:
+    def on_start(self, run) -> None:
         t0 = time.perf_counter()
-        self._start(system)
+        self._start(run)
         self.log_s += time.perf_counter() - t0
 
-    def on_frame(self, system, record: FrameRecord) -> None:
+    def on_frame(self, run, record: FrameRecord) -> None:
         t0 = time.perf_counter()
-        self._frame(system, record)
+        self._frame(run, record)
         self.log_s += time.perf_counter() - t0
 
-    def on_finish(self, system, metrics: dict, mesh=None) -> None:
+    def on_finish(self, run, metrics: dict, mesh=None) -> None:
         t0 = time.perf_counter()
         if mesh is not None and len(mesh.faces):
-            self.rec.set_time("frame", sequence=int(system.indices[len(system.state.est) - 1]))
+            self.rec.set_time("frame", sequence=int(run.indices[run.done - 1]))
             self._log_mesh(mesh)
         self.log_s += time.perf_counter() - t0
 
@@ -198,8 +198,8 @@ class RerunObserver(Observer):
         self.log_s += time.perf_counter() - t0
 
     # ------------------------------------------------------------------------------------------- helpers
-    def _start(self, system) -> None:
-        rr, intr = self.rr, system.intr
+    def _start(self, run) -> None:
+        rr, intr = self.rr, run.intrinsics
         # the sinks open here, not in __init__, so a run that fails while loading its data leaves no file
         rec = self.rec = rr.RecordingStream(self.application_id)
         sinks = []
@@ -208,26 +208,24 @@ class RerunObserver(Observer):
         if self.connect is not None:
             sinks.append(rr.GrpcSink(self.connect))
         rec.set_sinks(*sinks, default_blueprint=default_blueprint())
-        rec.log("world", _up_axis(system.c2w0), static=True)
+        rec.log("world", _up_axis(run.c2w0), static=True)
         # image_plane_distance sets the drawn frustum's depth: 0.2 m reads well at room scale
         rec.log("world/camera/image", rr.Pinhole(focal_length=[intr.fx, intr.fy], principal_point=[intr.cx, intr.cy],
                                                  width=intr.width, height=intr.height,
                                                  camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.2),
                 static=True)
-        done = len(system.state.est)
+        done = run.done
         if done:  # a resumed run: its trajectory so far, so the strips carry on from it
-            from slam.core.pose import pose_to_matrix
-
-            for T in pose_to_matrix(torch.stack(system.state.est)):
-                self._est.append(T[:3, 3].double().numpy())
-            if system.gt is not None:
-                for g in system.gt[:done]:
+            for T in run.poses():
+                self._est.append(T[:3, 3].astype(np.float64))
+            if run.gt is not None:
+                for g in run.gt[:done]:
                     if bool(torch.isfinite(g).all()):
                         self._gt.append(g[:3, 3].double().numpy())
         rec.log("metrics/ate_cm", rr.SeriesLines(names="live ATE RMSE (cm)", colors=[_EST_COLOR]), static=True)
         rec.log("metrics/frame_time_s", rr.SeriesLines(names="frame time (s)"), static=True)
 
-    def _frame(self, system, record: FrameRecord) -> None:
+    def _frame(self, run, record: FrameRecord) -> None:
         rr, rec = self.rr, self.rec
         rec.set_time("frame", sequence=record.frame)
         pose = record.pose.detach().double().cpu().numpy()
@@ -245,12 +243,14 @@ class RerunObserver(Observer):
         if math.isfinite(record.dt):
             rec.log("metrics/frame_time_s", rr.Scalars(record.dt))
         if self.mesh_every and record.mapped:
-            n = len(system.keyframes)
+            n = run.keyframe_count
             if n > self._keyframes_seen:
                 self._keyframes_seen = n
                 if n % self.mesh_every == 0:
+                    from slam.model.mesher import run_mesh
+
                     # unculled: culling needs every frame's pose, and the run is not over
-                    self._log_mesh(system.mesh(cull=False))
+                    self._log_mesh(run_mesh(run, cull=False))
 
     def _log_images(self, record: FrameRecord) -> None:
         rr, rec = self.rr, self.rec

@@ -2,7 +2,8 @@ import math
 
 import torch
 
-from slam.core.pose import (align_sign, constant_velocity, matrix_to_pose, matrix_to_quaternion, pose_to_matrix,
+from slam.core.pose import (align_sign, constant_velocity, matrix_to_pose, matrix_to_quaternion, normalize_pose,
+                            pose_to_matrix, rotation_angle,
                        quaternion_to_matrix, standardize_quaternion)
 
 
@@ -68,3 +69,23 @@ def test_pose_gradients_flow():
     p = torch.tensor([0.9, 0.1, 0.2, 0.3, 1.0, 2.0, 3.0], requires_grad=True)
     pose_to_matrix(p).sum().backward()
     assert p.grad is not None and torch.isfinite(p.grad).all()
+
+
+def test_normalize_pose_unit_quaternion_with_w_nonnegative_and_translation_kept():
+    p = torch.tensor([[-2.0, 0.0, 0.0, 0.0, 1.0, 2.0, 3.0], [0.0, 0.0, 3.0, 4.0, -1.0, 0.0, 0.5]])
+    n = normalize_pose(p)
+    assert torch.allclose(n[:, :4].norm(dim=-1), torch.ones(2))
+    assert torch.equal(n[0, :4], torch.tensor([1.0, 0.0, 0.0, 0.0]))  # -q is the same rotation: w >= 0
+    assert torch.allclose(n[1, :4], torch.tensor([0.0, 0.0, 0.6, 0.8]))
+    assert torch.equal(n[:, 4:], p[:, 4:])
+    assert torch.allclose(pose_to_matrix(n), pose_to_matrix(p))  # the same camera
+
+
+def test_rotation_angle_of_known_rotations():
+    for deg in (0.0, 1.0, 37.0, 90.0, 179.0):
+        a = math.radians(deg)
+        R = torch.tensor([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]],
+                         dtype=torch.float64)
+        assert math.isclose(float(rotation_angle(R)), a, abs_tol=1e-6)
+    # rounding that pushes the trace past 3 is clamped, not NaN
+    assert float(rotation_angle(torch.eye(3) * (1 + 1e-7))) == 0.0

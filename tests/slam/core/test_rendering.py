@@ -2,15 +2,8 @@ import math
 
 import torch
 
-from slam.core.rendering import (camera_rays, composite_weights, pixel_directions, ray_box_exit, render_rays,
-                            sample_depth_rays, sample_pdf, sample_pixels, sdf_to_alpha)
-
-
-def test_pixel_directions_opencv():
-    u = torch.tensor([10.0, 20.0])
-    v = torch.tensor([5.0, 15.0])
-    d = pixel_directions(u, v, fx=10.0, fy=20.0, cx=10.0, cy=5.0)
-    assert torch.allclose(d, torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.5, 1.0]]))
+from slam.core.rendering import (camera_rays, composite_weights, ray_box_exit, render_pixels, render_rays,
+                                 sample_depth_rays, sample_pdf, sdf_to_alpha)
 
 
 def test_camera_rays_rotate_and_keep_depth_parameter():
@@ -111,13 +104,6 @@ def test_render_rays_without_depth_uses_box():
     assert torch.allclose(out.depth, torch.full((4,), 2.0), atol=0.1)
 
 
-def test_sample_pixels_bounds_and_determinism():
-    v, u = sample_pixels(100, 120, 1000, 10, 20, torch.Generator().manual_seed(1))
-    assert v.min() >= 10 and v.max() < 90 and u.min() >= 20 and u.max() < 100
-    v2, u2 = sample_pixels(100, 120, 1000, 10, 20, torch.Generator().manual_seed(1))
-    assert torch.equal(v, v2) and torch.equal(u, u2)
-
-
 def test_color_cutoff_queries_only_weighted_samples_and_bounds_the_change():
     T = 0.06
     queried = []
@@ -138,3 +124,27 @@ def test_color_cutoff_queries_only_weighted_samples_and_bounds_the_change():
     skipped = (full.weights <= 1e-3).float() * full.weights
     assert (full.color - cut.color).abs().max() <= skipped.sum(-1).max() + 1e-6
     assert torch.equal(full.depth, cut.depth)
+
+
+def test_render_pixels_keeps_rays_inside_the_box_and_with_depth_when_asked():
+    """The one path from pixels to a render: a plane at z = 2 seen from the origin; pixels whose reading lies
+    beyond the box, or have none, are dropped exactly as asked, and the rest render the plane's depth."""
+    from types import SimpleNamespace
+
+    T = 0.1
+    scene = SimpleNamespace(sdf=lambda p: torch.clamp((2.0 - p[:, 2]) / T, -1, 1),
+                            rgb=lambda p: torch.full((p.shape[0], 3), 0.5), beta=torch.tensor(10.0),
+                            aabb=torch.tensor([[-5.0, 5.0], [-5.0, 5.0], [0.0, 2.5]]))
+    intr = SimpleNamespace(fx=10.0, fy=10.0, cx=5.0, cy=5.0)
+    rendering = SimpleNamespace(n_stratified=32, n_importance=8, color_cutoff=0.0)
+    u, v = torch.tensor([5, 5, 6, 4]), torch.tensor([5, 4, 5, 6])
+    depth = torch.tensor([2.0, 0.0, 3.0, 2.0])  # the third reading is beyond the box (z <= 2.5)
+    color = torch.rand(4, 3)
+    args = dict(u=u, v=v, depth=depth, color=color, c2w=torch.eye(4), intrinsics=intr, rendering=rendering,
+                truncation=T, perturb=False, generator=None)
+    out, D, C = render_pixels(scene, depth_required=True, **args)
+    assert torch.equal(D, depth[[0, 3]]) and torch.equal(C, color[[0, 3]])
+    assert torch.allclose(out.depth, torch.full((2,), 2.0), atol=0.05)
+    _, D_all, _ = render_pixels(scene, depth_required=False, **args)
+    assert torch.equal(D_all, depth[[0, 1, 3]])  # the pixel without a reading stays (the mapper's colour term)
+    assert render_pixels(scene, depth_required=True, min_rays=3, **args) is None

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import slam.engine.map_worker as mw
-import slam.engine.system as system_mod
+import slam.engine.tracking as tracking_mod
 from slam.config import load_config
 from tests.slam.conftest import TINY
 
@@ -27,7 +27,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool, every: int):
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10",
                                     f"mapping.every_frame={every}", f"parallel={str(parallel).lower()}"])
     seen, written = {}, {}
-    real_track, real_map = system_mod.track_frame, mw.map_frame
+    real_track, real_map = tracking_mod.track_frame, mw.map_frame
 
     def track(scene, *a, **k):
         seen[len(s.state.est)] = _digest(scene)  # frame position being tracked
@@ -38,7 +38,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool, every: int):
         written[index] = _digest(scene)  # the map as this call leaves it
         return res
 
-    monkeypatch.setattr(system_mod, "track_frame", track)
+    monkeypatch.setattr(tracking_mod, "track_frame", track)
     monkeypatch.setattr(mw, "map_frame", mapping)
     s = SLAM(cfg, load_data(cfg))
     s.run(progress=False)
@@ -71,14 +71,15 @@ def test_a_mesh_mid_run_waits_for_the_mapper_instead_of_freezing_its_scene(tiny_
     from slam.engine.observers import Observer
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
+    from slam.model.mesher import run_mesh
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=8", "mapping.every_frame=1",
                                     "parallel=true", "meshing.resolution=0.1"])
     faces = []
 
     class Mesher(Observer):
-        def on_frame(self, system, rec):
-            faces.append(len(system.mesh(cull=False).faces))
+        def on_frame(self, run, rec):
+            faces.append(len(run_mesh(run, cull=False).faces))
 
     s = SLAM(cfg, load_data(cfg))
     s.run(progress=False, observers=[Mesher()])

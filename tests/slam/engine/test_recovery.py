@@ -23,9 +23,9 @@ def _system(tiny_seq, overrides=(), blank=()):
 def _make_lost(monkeypatch, depth_of_the_frame):
     """Make the tracking of one frame implausible (a stand-in for a view the recent losses reject): the frame whose
     depth is ``depth_of_the_frame()``."""
-    import slam.engine.system
+    import slam.engine.tracking
 
-    real = slam.engine.system.recover
+    real = slam.engine.tracking.recover
 
     def failing(inp, res, prev, dt, starts, prediction, event):
         if torch.equal(inp.depth, depth_of_the_frame()):
@@ -33,7 +33,7 @@ def _make_lost(monkeypatch, depth_of_the_frame):
             return res, False, "tracking lost (made to fail by the test)"
         return real(inp, res, prev, dt, starts, prediction, event)
 
-    monkeypatch.setattr(slam.engine.system, "recover", failing)
+    monkeypatch.setattr(slam.engine.tracking, "recover", failing)
 
 
 def _error_cm(system, k):
@@ -62,7 +62,7 @@ def test_dropouts_unreadable_and_lost_frames_keep_the_trajectory_close_to_the_cl
     from slam.engine.system import SLAM
 
     def ate_cm(s):
-        return 100 * ate(s.poses_matrix(), s.gt[: len(s.state.est)].numpy()).rmse
+        return 100 * ate(s.view().poses(), s.gt[: len(s.state.est)].numpy()).rmse
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, "tracking.iters=4"])
     clean = SLAM(cfg, load_data(cfg))
@@ -112,5 +112,5 @@ def test_a_run_of_untrusted_frames_ends_in_relocalisation_and_tracking_goes_on(t
         assert _error_cm(s, 14) < 2.0  # from 9 cm at the start (the tiny map is good to about a centimetre)
         assert [kf.index for kf in s.keyframes.frames] == [*range(8), 14, 15, 16, 17]  # frame 14 mapped again
         loss_14 = next(t["loss"] for t in s.state.tracking if t["frame"] == 14)
-        assert s.guard.state()[0] == loss_14  # the history restarted from the relocalised frame
+        assert s.guard.state_dict()["losses"][0] == loss_14  # the history restarted from the relocalised frame
         s.close()

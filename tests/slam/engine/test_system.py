@@ -50,7 +50,7 @@ def test_invalid_depth_frame_is_skipped(tiny_seq):
 
 
 def test_nan_tracking_falls_back_to_constant_velocity(tiny_seq, monkeypatch):
-    import slam.engine.system as system
+    import slam.engine.tracking as system
     from slam.core.pose import constant_velocity
     from slam.engine.tracker import TrackResult
 

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-import slam.engine.system as system_mod
+import slam.engine.tracking as tracking_mod
 from slam.config import load_config
 from slam.engine.tracking_guard import TrackingGuard, motion
 from tests.slam.conftest import TINY
@@ -51,7 +51,7 @@ def _system(tiny_seq, extra=()):
 
 def _jump_first_attempt(monkeypatch, frame, always=False):
     """track_frame returns a pose 40 cm off (a jump no camera makes in 1/30 s) for frame ``frame``."""
-    real = system_mod.track_frame
+    real = tracking_mod.track_frame
     calls = {"n": 0}
 
     def track(scene, color, depth, intr, init, cfg, gen, **kw):
@@ -65,7 +65,7 @@ def _jump_first_attempt(monkeypatch, frame, always=False):
     track.k = -1
     import slam.engine.recovery
 
-    monkeypatch.setattr(system_mod, "track_frame", track)  # the first attempt
+    monkeypatch.setattr(tracking_mod, "track_frame", track)  # the first attempt
     monkeypatch.setattr(slam.engine.recovery, "track_frame", track)  # the recovery attempts
     return track
 

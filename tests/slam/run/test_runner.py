@@ -15,7 +15,7 @@ import torch
 from slam.engine.observers import Observer
 from tests.slam.conftest import TINY
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 RUN = TINY[1:] + ["data.max_frames=10", "checkpoint_every=2"]  # TINY[0] is data.max_frames=6
 
 
@@ -132,7 +132,7 @@ class _SignalAt(Observer):
     def __init__(self, k: int):
         self.k = k
 
-    def on_frame(self, system, rec):
+    def on_frame(self, run, rec):
         if rec.k == self.k:
             os.kill(os.getpid(), signal.SIGINT)
 
@@ -198,8 +198,38 @@ def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, caps
     assert len(err) == 1 and "written under another config" in err[0] and "tracking.iters" in err[0]
 
 
+def test_a_checkpoint_of_an_earlier_version_resumes(tiny_seq, tmp_path, caplog):
+    """A run folder written before the relocalisation keys existed (29d2223's format: its config and checkpoint
+    lack them, the guard's history is a bare list, the run state has no reloc_tried_at) resumes; the keys it did
+    not have take their defaults, and the log says so."""
+    import yaml
+
+    from slam.cli import main
+
+    out = tmp_path / "old"
+    assert main(["run", "--data", str(tiny_seq), "--out", str(out), "--quiet", "--no-mesh", *INPROC,
+                 "--stop-after", "5"]) == 0
+    ckpt = out / "checkpoint.pt"
+    payload = torch.load(ckpt, weights_only=True)
+    new_keys = ("relocalize_after", "relocalize_keyframes")
+    for key in new_keys:
+        del payload["config"]["tracking"][key]
+    run = payload["extra"]["run"]
+    run["guard"] = run["guard"]["losses"]
+    del run["state"]["reloc_tried_at"]
+    torch.save(payload, ckpt)
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    for key in new_keys:
+        del config["tracking"][key]
+    (out / "config.yaml").write_text(yaml.safe_dump(config))
+    with caplog.at_level("WARNING", logger="slam"):
+        assert main(["run", "--resume", str(out), "--no-mesh"]) == 0
+    assert "written by an earlier version" in caplog.text and "tracking.relocalize_after=5" in caplog.text
+    assert json.loads((out / "metrics.json").read_text())["num_frames"] == 10
+
+
 def test_checkpoint_roundtrip_restores_every_piece_of_state(tiny_seq):
-    from slam.run.checkpoint import restore, run_state
+    from slam.run.checkpoint import RUN_FORMAT, checkpoint_extra, restore
     from slam.config import load_config
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
@@ -208,8 +238,8 @@ def test_checkpoint_roundtrip_restores_every_piece_of_state(tiny_seq):
     a = SLAM(cfg, load_data(cfg))
     for k in range(5):
         a.step(k)
-    extra = a.checkpoint_extra()
-    extra["run"] = run_state(a)
+    extra = checkpoint_extra(a.view())
+    extra["run"] = {"format": RUN_FORMAT, "next": 5, **a.state_dict()}
     ckpt = {"state_dict": {k: v.clone() for k, v in a.scene.state_dict().items()}, "extra": extra}
     b = SLAM(cfg, load_data(cfg))
     assert restore(b, ckpt) == 5

@@ -168,7 +168,7 @@ def test_resumed_run_continues_the_trajectories(tiny_seq, tmp_path):
     from slam.run.viewer import RerunObserver
 
     class Interrupt(Observer):
-        def on_frame(self, system, record):
+        def on_frame(self, run, record):
             if record.k == 2:
                 os.kill(os.getpid(), signal.SIGINT)
 

@@ -14,7 +14,7 @@ from slam.cli import main
 from slam.errors import SlamInputError
 from slam.sweep.compare import compare, compare_values, load_runs, seeds_needed
 
-RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+RESULTS = Path(__file__).resolve().parents[3] / "benchmarks" / "results"
 
 
 def _slam_compare(path: Path, rep_values: dict[str, dict[int, float]], data="/d/tum_fr1_rpy") -> Path:

@@ -200,7 +200,7 @@ def test_interrupted_run_goes_on_from_its_checkpoint(tiny_seq, tmp_path):
     (spec,) = plan([f"synthetic={tiny_seq}"], ["lrslam"], 1, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
 
     class Interrupt(Observer):
-        def on_frame(self, system, record):
+        def on_frame(self, run, record):
             if record.k == 1:
                 os.kill(os.getpid(), signal.SIGINT)
 
@@ -225,7 +225,7 @@ def test_a_stopped_sweep_leaves_its_running_runs_resumable(tiny_seq, tmp_path):
     from slam.config import load_config
     from slam.run.runner import RunInterrupted, run_to_folder
     from slam.sweep import interrupted, run_one
-    from slam.sweep.runs import RayEngine
+    from slam.sweep.engines import RayEngine
 
     specs = plan([f"synthetic={tiny_seq}"], ["lrslam"], 2, tmp_path / "sw", overrides=SWEEP_TINY, mesh=False)
     stop = tmp_path / "sw" / ".stop"
@@ -233,7 +233,7 @@ def test_a_stopped_sweep_leaves_its_running_runs_resumable(tiny_seq, tmp_path):
     from slam.engine.observers import Observer
 
     class TouchAt1(Observer):
-        def on_frame(self, system, record):
+        def on_frame(self, run, record):
             if record.k == 1:
                 stop.touch()
 
@@ -292,7 +292,7 @@ def test_tiny_sweep_on_local_ray(tiny_seq, tmp_path, capsys):
     argv = ["sweep", "--config", f"synthetic={tiny_seq}", f"synthetic={broken}", "--representation", "lrslam",
             "eslam", "--seeds", "2", "--out", str(out), "--no-mesh", *SWEEP_TINY]
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
-             runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}})
+             runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[3])}})
     try:
         t0 = time.perf_counter()
         assert main(argv) == 1  # some runs failed

@@ -1,0 +1,89 @@
+"""Tracking one frame the way the loop does: predict, start from depth ICP, track, check, recover, relocalise.
+
+:func:`predict` gives the motion model's pose; :func:`track_with_recovery` tracks from the ICP start
+(:func:`slam.engine.recovery.icp_start`), checks the result with the guard, re-tracks an implausible one
+(:func:`slam.engine.recovery.recover`) and, after ``tracking.relocalize_after`` untrusted frames in a row,
+relocalises against the keyframes (:func:`slam.engine.recovery.relocalise`). It reads and updates only the
+:class:`slam.engine.state.RunState` it is handed (``reloc_tried_at``) and the guard (its history restarts after a
+relocalisation); everything it decides is an event.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+
+from slam.core.pose import constant_velocity
+from slam.engine.recovery import TrackInput, icp_start, recover, relocalise
+from slam.engine.state import RunState
+from slam.engine.tracker import TrackResult, track_frame
+
+
+def predict(est: list, init: str) -> tuple[torch.Tensor, str]:
+    """The pose ``[7]`` the next frame starts from before tracking, and what it is: constant velocity over the
+    last two poses of ``est`` (unless ``tracking.init`` is ``previous``), else the previous pose."""
+    if init != "previous" and len(est) >= 2:
+        return constant_velocity(est[-1], est[-2]), "constant-velocity pose"
+    return est[-1].clone(), "previous pose"
+
+
+@dataclass
+class Timeline:
+    """What tracking needs of the run beyond the frame: ``dt(k, j)`` seconds from position ``j`` to ``k``;
+    ``keyframes()`` the keyframe list once the mapper is idle; ``frame_of(k)`` the dataset frame number of
+    position ``k``; ``event(k, what, **extra)`` records an event."""
+
+    dt: Callable[[int, int], float]
+    keyframes: Callable[[], list]
+    frame_of: Callable[[int], int]
+    event: Callable[..., None]
+
+
+def track_with_recovery(k: int, inp: TrackInput, st: RunState, pred: torch.Tensor, what: str,
+                        run: Timeline) -> tuple[TrackResult, bool]:
+    """Track frame position ``k`` (its images in ``inp``) from the ICP start or the prediction ``pred``; returns
+    ``(result, trusted)``. An untrusted result's pose is still the best the loop has (it is recorded, not mapped)."""
+    cfg = inp.cfg
+    init = pred
+    if cfg.tracking.init == "icp" and st.prev_depth is not None:
+        # ICP registers against the last trusted frame with depth: chain its motion onto that frame's pose
+        init, _ = icp_start(st.est[st.prev_depth_k], st.prev_depth, pred, inp.depth, inp.intr)
+    res = track_frame(inp.scene, inp.color, inp.depth, inp.intr, init, cfg, inp.gen)
+    last = st.last_trusted()
+    anchor, dt = (st.est[last], run.dt(k, last)) if last >= 0 else (st.est[-1], run.dt(k, max(k - 1, 0)))
+    if not res.ok:
+        res.pose, trusted, lost = pred, False, f"tracking failed ({res.message}): {what} used"
+    else:
+        starts = {"start": init, what: pred, "previous pose": st.est[-1]}
+        if 0 <= last < k - 1:
+            starts["last trusted pose"] = st.est[last]
+        res, trusted, lost = recover(inp, res, anchor, dt, starts, pred, lambda m, **x: run.event(k, m, **x))
+    if trusted:
+        return res, True
+    untrusted = k - 1 - last  # frames in a row before this one without a trusted pose
+    n = cfg.tracking.relocalize_after
+    if n and last >= 0 and untrusted >= n and (st.reloc_tried_at <= last or k - st.reloc_tried_at >= n):
+        st.reloc_tried_at = k
+        best, found = _relocalise(inp, run, anchor, dt, pred)
+        if best is not None:
+            run.event(k, f"{lost}; relocalised from the {found} after {untrusted} untrusted frames "
+                         "(loss history restarted)", relocalised=True)
+            best.iters += res.iters
+            return best, True
+        lost += f"; relocalisation after {untrusted} untrusted frames found no plausible pose"
+    run.event(k, f"{lost}, frame not mapped", lost=True)
+    return res, False
+
+
+def _relocalise(inp: TrackInput, run: Timeline, anchor: torch.Tensor, dt: float, pred: torch.Tensor):
+    """Relocalise against the keyframes (read once the mapper is idle, so the same ones whatever the threads'
+    timing); on success the guard's history restarts from the result. Returns ``(result or None, its start)``."""
+    kfs = run.keyframes()
+    if not kfs:
+        return None, ""
+    best, found = relocalise(inp, kfs, anchor, dt, pred, run.frame_of)
+    if best is not None:
+        inp.guard.reset(best.loss)
+    return best, found
