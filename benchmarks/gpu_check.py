@@ -106,14 +106,14 @@ def main(argv=None) -> int:
     py = sys.executable
     dev = "cpu" if args.smoke else "cuda"
     steps = []
+    triton_tests = "tests/tdfields/kernels/triton/test_autograd.py"
     # ---- 1. CUDA tests and a short SLAM run on the device, both loop modes
     if args.smoke:
         env_t = dict(env, TRITON_INTERPRET="1")
-        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", "-x", "tests/tdfields/kernels/test_gpu_triton.py",
-                                         "-k", "cp or triplane"], 300, env_t, log))
+        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", "-x", triton_tests, "-k", "cp or triplane"], 300, env_t, log))
     else:
         env_t = dict(env, TRITON_INTERPRET="0")
-        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", "tests/tdfields/kernels/test_gpu_triton.py"],
+        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", triton_tests],
                           150, env_t, log))
     seq = tiny_sequence(out)
     tiny = ["data.max_frames=6", "tracking.iters=3", "tracking.pixels=100", "mapping.iters=3", "mapping.iters_first=5",

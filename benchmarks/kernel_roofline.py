@@ -2,7 +2,8 @@
 
 Peaks are measured here, not taken from a datasheet: FLOP/s from a large float32 matrix product (torch's BLAS),
 bandwidth from copying a 256 MiB tensor (DRAM) and a 8 MiB one (last-level cache). Each kernel is timed alone
-(median of repeats) at the paper's Replica room0 configuration on 40k uniformly random points, and its work is
+(median of repeats) at the paper's Replica room0 configuration on 40k uniformly random points, on the plan a
+SLAM mapping query evaluates (``tdfields.plan``, as ``MultiResolution.forward`` runs it), and its work is
 counted from its program: per point, every factor's ``2**d`` corner rows (``d`` axes) are read and blended
 (2 FLOPs per value), the term's factors multiplied and the rank components summed. "Effective bandwidth" is the
 bytes those corner rows occupy divided by the time: the gather traffic the kernel must serve, whether it comes
@@ -82,39 +83,36 @@ def kernels_to_measure():
 def measure(repeats: int) -> dict:
     import torch
 
+    import tdfields
     from conftest import build, points
-    from tdfields.interpolation import to_grid_coords
-    from tdfields.ops import evaluate
-    from tdfields.program import concat
+    from tdfields.ops import evaluate, grid_coords
 
     x = points()
     rows = []
     for label, name in kernels_to_measure().items():
         field = build(name)
         field.requires_grad_(False)
-        plans = [level.query_plan(x.shape[0]) for level in field.levels]
-        program = concat([p for p, _ in plans])
-        tensors = [t for _, ts in plans for t in ts]
-        coords = torch.stack([to_grid_coords(x, lv.aabb, lv.grid_shape) for lv in field.levels])
-        widths = tuple(t.shape[-1] for t in tensors)
+        # the plan a SLAM mapping query evaluates: tdfields.plan is what MultiResolution.forward runs (for Six-axis
+        # the planes composed over the points' bounding box), so the lookup timed here is the one mapping runs
+        plan = tdfields.plan(field, x)
+        widths = tuple(t.shape[-1] for t in plan.tensors)
         with torch.no_grad():
-            t = median_time(lambda: evaluate(program, tensors, coords), repeats)
-        flops, nbytes = program_work(program, widths, x.shape[0])
-        factor_mib = sum(t.numel() * t.element_size() for t in tensors) / 2**20
+            t = median_time(lambda: evaluate(plan.program, plan.tensors, plan.coords), repeats)
+        flops, nbytes = program_work(plan.program, widths, x.shape[0])
+        factor_mib = sum(t.numel() * t.element_size() for t in plan.tensors) / 2**20
         rows.append({"kernel": f"lookup: {label}", "ms": 1e3 * t, "gflops": flops / t / 1e9,
                      "gbs": nbytes / t / 1e9, "working_set_mib": factor_mib})
-    # Six-axis plane composition (the fine appearance level, three planes)
-    from tdfields import kernels
-
+    # Six-axis plane composition: planning the fine appearance level as a mapping query does (Field.plan_at: its
+    # three planes composed over the points' bounding box, the coordinates shifted to them)
     field = build("appearance/lrslam-six_axis")
     fine = field.levels[1]
-    pairs = [(fine.factors["xy_x"], fine.factors["xy_y"]), (fine.factors["yz_y"], fine.factors["yz_z"]),
-             (fine.factors["zx_z"], fine.factors["zx_x"])]
+    coords = grid_coords(x, [fine.aabb], [fine.grid_shape])
     with torch.no_grad():
-        t = median_time(lambda: [kernels.compose_plane(u, v, fine.rank) for u, v in pairs], repeats)
+        t = median_time(lambda: fine.plan_at(coords), repeats)
+        planes = fine.plan_at(coords).tensors
     k, C = fine.rank, fine.channels
-    flops = sum(2 * u.shape[0] * v.shape[0] * k * C for u, v in pairs)
-    nbytes = sum(4 * (u.shape[0] * v.shape[0] * C + (u.shape[0] + v.shape[0]) * k * C) for u, v in pairs)
+    flops = sum(2 * p.shape[0] * p.shape[1] * k * C for p in planes)
+    nbytes = sum(4 * (p.shape[0] * p.shape[1] * C + (p.shape[0] + p.shape[1]) * k * C) for p in planes)
     rows.append({"kernel": "Six-axis plane composition (fine level, 3 planes, k=16, C=32)", "ms": 1e3 * t,
                  "gflops": flops / t / 1e9, "gbs": nbytes / t / 1e9, "working_set_mib": nbytes / 2**20})
     return {"rows": rows}

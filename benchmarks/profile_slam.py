@@ -39,7 +39,8 @@ def stage_timers():
     import torch
 
     import tdfields
-    from tdfields.kernels import fused
+    from tdfields.kernels.numba import autograd as numba_autograd
+    from tdfields.kernels.second_order import FirstOrderQuery
 
     acc: dict[str, float] = defaultdict(float)
     depth = {"n": 0}  # nested field calls (MultiResolution -> Field) count once
@@ -63,9 +64,9 @@ def stage_timers():
         return owner, name, original
 
     patches = [wrap(tdfields.MultiResolution, "forward", "fields fwd"), wrap(tdfields.Field, "forward", "fields fwd"),
-               wrap(fused._FusedProgram, "backward", "fields bwd", static=True),
-               wrap(fused._FusedCompose, "backward", "fields bwd", static=True),
-               wrap(fused._FusedGridCoords, "backward", "fields bwd", static=True),
+               wrap(FirstOrderQuery, "backward", "fields bwd", static=True),  # NumbaProgram's (and TritonProgram's)
+               wrap(numba_autograd.NumbaCompose, "backward", "fields bwd", static=True),
+               wrap(numba_autograd.NumbaGridCoords, "backward", "fields bwd", static=True),
                wrap(tdfields.MLPDecoder, "forward", "decoders fwd"), wrap(torch.optim.Adam, "step", "optimizer")]
     try:
         yield acc

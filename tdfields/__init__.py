@@ -9,7 +9,8 @@ Every field maps ``[..., 3]`` world coordinates in metres to ``[..., C]`` featur
 
 Kinds: :class:`DenseGrid` (O(n^3)), :class:`TriPlane` and :class:`VectorMatrix` (O(n^2)), :class:`CP` and
 :class:`SixAxis` (O(n)); compositions :class:`MultiResolution` and :class:`Hybrid`; :func:`build` from configs;
-:func:`frozen` for blocks in which the parameters are fixed and fields may cache (tracking, meshing).
+:func:`frozen` for blocks in which the parameters are fixed and fields may cache (tracking, meshing);
+:func:`plan` for the :class:`Plan` (program, tensors, coordinates) a query evaluates.
 """
 
 from tdfields._version import __version__
@@ -27,12 +28,13 @@ from tdfields.config import (
 from tdfields.cp import CP
 from tdfields.decoders import MLPDecoder
 from tdfields.dense_grid import DenseGrid
-from tdfields.field import FactorSpec, Field
+from tdfields.field import FactorSpec, Field, FieldLike, plan
 from tdfields.frozen import frozen
 from tdfields.hybrid import Hybrid
 from tdfields.interpolation import to_grid_coords
 from tdfields.multires import MultiResolution
 from tdfields.ops import interpolate
+from tdfields.program import Plan
 from tdfields.report import FieldRow, Report, report
 from tdfields.resize import resize
 from tdfields.six_axis import SixAxis
@@ -44,6 +46,9 @@ __all__ = [
     "__version__",
     "Field",
     "FactorSpec",
+    "FieldLike",
+    "Plan",
+    "plan",
     "DenseGrid",
     "TriPlane",
     "VectorMatrix",

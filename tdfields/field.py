@@ -8,16 +8,55 @@ over rank). Everything else (box handling, the query, parameter accounting, resi
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Sequence
+from typing import ClassVar, Protocol, Sequence
 
 import torch
 from torch import nn
 
 from tdfields.bounds import as_aabb, contains, grid_shape_for
 from tdfields.ops import evaluate, grid_coords
-from tdfields.program import Program, single
+from tdfields.program import Plan, Program, single
 
 COMPLEXITIES = ("O(n)", "O(n^2)", "O(n^3)")
+
+#: ``(aabb, grid_shape)``: a ``(3, 2)`` box in metres and the samples per axis of one grid a query reads
+Grid = tuple[torch.Tensor, tuple[int, int, int]]
+
+
+class FieldLike(Protocol):
+    """What :func:`plan` accepts (and :class:`tdfields.MultiResolution` holds as levels): something that names the
+    grids its query reads and plans a query at the points' coordinates in them. :class:`Field` reads one grid,
+    :class:`tdfields.MultiResolution` its levels' grids in order."""
+
+    @property
+    def out_dim(self) -> int:
+        """Width of the features a query returns."""
+
+    def grids(self) -> list[Grid]:
+        """``(aabb, grid_shape)`` of every coordinate set the query reads, in the order of its plan's levels."""
+
+    def plan_at(self, coords: torch.Tensor) -> Plan:
+        """The :class:`~tdfields.program.Plan` of a query at ``coords [len(grids()), N, 3]``: the points'
+        continuous indices in each grid (:func:`tdfields.to_grid_coords`)."""
+
+
+def plan(field: FieldLike, points: torch.Tensor) -> Plan:
+    """The :class:`~tdfields.program.Plan` a query of ``field`` at world points ``[N, 3]`` evaluates: the points'
+    coordinates in all of its grids in one pass (:func:`tdfields.ops.grid_coords`), then ``field.plan_at`` of them.
+
+    ``field(points)`` is ``tdfields.ops.evaluate(p.program, p.tensors, p.coords)`` of this plan, so it is also what
+    a benchmark of the query (a SLAM mapping step, say) should time.
+    """
+    grids = field.grids()
+    return field.plan_at(grid_coords(points, [box for box, _ in grids], [shape for _, shape in grids]))
+
+
+def query(field: FieldLike, points: torch.Tensor) -> torch.Tensor:
+    """``field``'s features at world points ``[..., 3]`` -> ``[..., out_dim]``: its :func:`plan`, evaluated."""
+    if points.shape[-1] != 3:
+        raise ValueError(f"{type(field).__name__}: points must have shape [..., 3], got {tuple(points.shape)}")
+    p = plan(field, points.reshape(-1, 3))
+    return evaluate(p.program, p.tensors, p.coords).reshape(*points.shape[:-1], field.out_dim)
 
 
 class FactorSpec(tuple):
@@ -129,29 +168,33 @@ class Field(nn.Module):
         Returns:
             ``[..., out_dim]`` features, same leading dims, dtype of the factors.
         """
-        if points.shape[-1] != 3:
-            raise ValueError(f"{type(self).__name__}: points must have shape [..., 3], got {tuple(points.shape)}")
-        lead = points.shape[:-1]
-        coords = grid_coords(points.reshape(-1, 3), [self.aabb], [self.grid_shape])[0]
-        return self.features_at(coords).reshape(*lead, self.out_dim)
+        return query(self, points)
 
     def features_at(self, coords: torch.Tensor) -> torch.Tensor:
         """Features at continuous grid indices ``[N, 3]`` (see :func:`tdfields.to_grid_coords`) -> ``[N, C]``."""
-        program, tensors, coords = self.plan_query(coords)
-        return evaluate(program, tensors, coords[None])
+        p = self.plan_at(coords[None])
+        return evaluate(p.program, p.tensors, p.coords)
 
-    def plan_query(self, coords: torch.Tensor) -> tuple[Program, list[torch.Tensor], torch.Tensor]:
-        """:meth:`query_plan` for these grid coordinates ``[N, 3]``: ``(program, tensors, coords)``, where a kind
-        may hand back tensors covering only the region the points touch, with the coordinates shifted to match
-        (Six-axis composes sub-planes in mapping). By default the full plan and the coordinates unchanged."""
-        program, tensors = self.query_plan(coords.shape[0])
-        return program, tensors, coords
+    def grids(self) -> list[Grid]:
+        """``[(aabb, grid_shape)]``: the one grid a query reads (see :class:`FieldLike`)."""
+        return [(self.aabb, self.grid_shape)]
 
-    def query_plan(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
-        """The :class:`tdfields.program.Program` and tensors a query of ``num_points`` points evaluates.
+    def plan_at(self, coords: torch.Tensor) -> Plan:
+        """The :class:`~tdfields.program.Plan` of a query at grid coordinates ``coords [1, N, 3]``.
 
-        By default the factors themselves; a kind may substitute equivalent tensors (Six-axis composes its planes
-        for large batches). :class:`tdfields.MultiResolution` concatenates its levels' plans into one pass.
+        By default :meth:`whole_grid_program` and the coordinates unchanged. A kind may hand back tensors covering
+        only the region the points touch, with the coordinates shifted to match (Six-axis composes sub-planes in
+        mapping).
+        """
+        program, tensors = self.whole_grid_program(coords.shape[1])
+        return Plan(program, tuple(tensors), coords)
+
+    def whole_grid_program(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
+        """The :class:`tdfields.program.Program` of a query of ``num_points`` points anywhere in the grid, and the
+        tensors it reads (covering the whole grid).
+
+        By default the factors themselves; a kind may substitute equivalent tensors (Six-axis composes its whole
+        planes for large batches, and caches them inside :func:`tdfields.frozen`).
         """
         specs = self.factor_specs()
         names = list(specs)

@@ -8,9 +8,8 @@ import torch
 from torch import nn
 
 from tdfields.bounds import contains
-from tdfields.field import COMPLEXITIES, Field
-from tdfields.ops import evaluate, grid_coords
-from tdfields.program import concat
+from tdfields.field import COMPLEXITIES, Field, Grid, query
+from tdfields.program import Plan, concat_plans
 
 
 class MultiResolution(nn.Module):
@@ -20,12 +19,16 @@ class MultiResolution(nn.Module):
     concatenated 64 channels to the decoder. Levels may be of different kinds.
 
     Args:
-        levels: the fields, coarse first by convention; their order is the order of the output channels.
+        levels: the fields (or multi-resolution stacks), coarse first by convention; their order is the order of
+            the output channels.
+
+    A query is planned from the levels (:meth:`plan_at`): their plans concatenated into one, so coarse + fine run
+    in one fused kernel call, nested stacks included.
     """
 
     kind = "multires"
 
-    def __init__(self, levels: Sequence[Field]):
+    def __init__(self, levels: Sequence[Field | MultiResolution]):
         super().__init__()
         levels = list(levels)
         if not levels:
@@ -57,23 +60,23 @@ class MultiResolution(nn.Module):
         return max((level.complexity for level in self.levels), key=COMPLEXITIES.index)
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
-        """``[..., 3]`` world metres -> ``[..., out_dim]`` (levels concatenated in order).
+        """``[..., 3]`` world metres -> ``[..., out_dim]`` (levels concatenated in order), in one evaluation of
+        the plan of all levels (:func:`tdfields.plan`)."""
+        return query(self, points)
 
-        When every level is a :class:`tdfields.Field`, their query plans are concatenated and evaluated in one
-        pass (one fused kernel call for coarse + fine).
-        """
-        if points.shape[-1] != 3:
-            raise ValueError(f"MultiResolution: points must have shape [..., 3], got {tuple(points.shape)}")
-        if not all(isinstance(level, Field) for level in self.levels):
-            return torch.cat([level(points) for level in self.levels], dim=-1)
-        lead = points.shape[:-1]
-        flat = points.reshape(-1, 3)
-        coords = grid_coords(flat, [level.aabb for level in self.levels], [level.grid_shape for level in self.levels])
-        plans = [level.plan_query(c) for level, c in zip(self.levels, coords)]
-        program = concat([p for p, _, _ in plans])
-        coords = torch.stack([c for _, _, c in plans])
-        out = evaluate(program, [t for _, tensors, _ in plans for t in tensors], coords)
-        return out.reshape(*lead, self.out_dim)
+    def grids(self) -> list[Grid]:
+        """The levels' grids in order: ``(aabb, grid_shape)`` of every coordinate set a query reads."""
+        return [grid for level in self.levels for grid in level.grids()]
+
+    def plan_at(self, coords: torch.Tensor) -> Plan:
+        """One :class:`~tdfields.program.Plan` for all levels: each level's plan at its own coordinate sets of
+        ``coords [len(grids()), N, 3]``, concatenated (:func:`tdfields.program.concat_plans`)."""
+        plans, start = [], 0
+        for level in self.levels:
+            stop = start + len(level.grids())
+            plans.append(level.plan_at(coords[start:stop]))
+            start = stop
+        return concat_plans(plans)
 
     def contains(self, points: torch.Tensor) -> torch.Tensor:
         """``[..., 3]`` -> ``[...]`` bool, inside the union box."""

@@ -15,8 +15,7 @@ import torch
 
 from tdfields import kernels
 from tdfields.interpolation import interpolate_reference, to_grid_coords
-from tdfields.kernels import compose_plane
-from tdfields.program import Program, evaluate_reference
+from tdfields.program import Program, compose_plane_reference, evaluate_reference
 
 __all__ = ["evaluate", "grid_coords", "interpolate", "compose_plane"]
 
@@ -63,3 +62,15 @@ def interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     if kernels.use_fused(grid, coords):
         return kernels.fused_interpolate(grid, coords)
     return interpolate_reference(grid, coords)
+
+
+def compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
+    """Rank-k plane from two line factors: ``u [n_a, k*C]``, ``v [n_b, k*C]`` -> ``[n_a, n_b, C]``,
+    ``P[a, b, c] = sum_r u[a, r*C + c] v[b, r*C + c]`` (rank-major, channel-minor factors).
+
+    The fused kernel where :func:`tdfields.kernels.use_fused` allows it, else
+    :func:`tdfields.program.compose_plane_reference` (``torch.einsum``).
+    """
+    if kernels.use_fused(u, v):
+        return kernels.fused_compose_plane(u, v, rank)
+    return compose_plane_reference(u, v, rank)

@@ -11,8 +11,12 @@ multiply, the rank and output offset of each term). Several fields' programs con
 multi-resolution stack (coarse + fine) is evaluated in a single pass.
 
 :func:`evaluate_reference` runs a program with plain PyTorch ops: the oracle (any-order derivatives,
-``torch.compile``-able). :func:`tdfields.ops.evaluate` runs it through a fused kernel of :mod:`tdfields.kernels` where
-one applies and through the reference otherwise; this module imports neither.
+``torch.compile``-able), as :func:`compose_plane_reference` is for the composition of a Six-axis plane.
+:func:`tdfields.ops.evaluate` runs a program through a fused kernel of :mod:`tdfields.kernels` where one applies and
+through the reference otherwise; this module imports neither.
+
+A :class:`Plan` is one query made concrete: a program, the tensors it reads and the grid coordinates it reads them
+at. Fields produce it (:func:`tdfields.plan`), :func:`concat_plans` joins several into one pass.
 """
 
 from __future__ import annotations
@@ -91,6 +95,34 @@ def concat(programs: Sequence[Program]) -> Program:
     return Program(tuple(axes), tuple(level), tuple(terms), tuple(ranks), tuple(offsets), width)
 
 
+@dataclass(frozen=True, eq=False)
+class Plan:
+    """What one query evaluates: ``evaluate(plan.program, plan.tensors, plan.coords)`` gives its features.
+
+    Produced by :func:`tdfields.plan` (a field at world points) and :meth:`tdfields.Field.plan_at` (at grid
+    coordinates); the tensors may be the factors themselves or equivalent ones a kind derived from them (Six-axis
+    planes composed over the region the points touch), with the coordinates shifted to match.
+
+    Attributes:
+        program: the query structure.
+        tensors: one channels-last tensor per factor of ``program``, in its order.
+        coords: ``[program.num_levels, N, 3]`` continuous grid indices, one set per level.
+    """
+
+    program: Program
+    tensors: tuple[torch.Tensor, ...]
+    coords: torch.Tensor
+
+
+def concat_plans(plans: Sequence[Plan]) -> Plan:
+    """One plan evaluating all of ``plans`` in a single pass: programs :func:`concat`-enated, tensors and coordinate
+    sets in order (the outputs side by side, as the plans' own outputs concatenated)."""
+    if len(plans) == 1:
+        return plans[0]
+    return Plan(concat([p.program for p in plans]), tuple(t for p in plans for t in p.tensors),
+                torch.cat([p.coords for p in plans]))
+
+
 def evaluate_reference(program: Program, factors: Sequence[torch.Tensor], coords: torch.Tensor) -> torch.Tensor:
     """Run ``program`` with plain PyTorch ops (the oracle for the fused kernels).
 
@@ -123,3 +155,10 @@ def evaluate_reference(program: Program, factors: Sequence[torch.Tensor], coords
     if out.shape[-1] != program.out_dim:
         raise ValueError(f"program terms cover {out.shape[-1]} channels, out_dim is {program.out_dim}")
     return out
+
+
+def compose_plane_reference(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
+    """Rank-k plane from two line factors with ``torch.einsum`` (the oracle for the fused composition):
+    ``u [n_a, k*C]``, ``v [n_b, k*C]`` -> ``[n_a, n_b, C]``, ``P[a, b, c] = sum_r u[a, r*C + c] v[b, r*C + c]``
+    (rank-major, channel-minor factors); differentiable to any order."""
+    return torch.einsum("akc,bkc->abc", u.reshape(u.shape[0], rank, -1), v.reshape(v.shape[0], rank, -1))

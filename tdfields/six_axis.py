@@ -8,7 +8,7 @@ import torch
 
 from tdfields.field import FactorSpec, Field
 from tdfields.ops import compose_plane
-from tdfields.program import Program, single
+from tdfields.program import Plan, Program, single
 
 # plane name -> (first axis, second axis); factor names are f"{plane}_{axis letter}"
 _PLANES = {"xy": (0, 1), "yz": (1, 2), "zx": (2, 0)}
@@ -131,14 +131,18 @@ class SixAxis(Field):
             highs.append(max(min(int(hi[a]), n - 1), first + 1))
         return lows, highs
 
-    def plan_query(self, coords: torch.Tensor):
+    def plan_at(self, coords: torch.Tensor) -> Plan:
+        """The plan at ``coords [1, N, 3]``: inside a frozen block or with ``strategy="factors"`` the whole-grid
+        program; else, where composing planes pays (:meth:`use_planes`), the planes over the points' bounding box
+        (sub-planes) and the coordinates shifted to them, or the factors."""
         if self._caching() or self.strategy == "factors":
-            program, tensors = self.query_plan(coords.shape[0])
-            return program, tensors, coords
-        lo, hi = self._box(coords)
+            return super().plan_at(coords)
+        points = coords[0]
+        lo, hi = self._box(points)
         extent = tuple(h - l_ + 1 for l_, h in zip(lo, hi))
-        if not self.use_planes(coords.shape[0], extent):
-            return (*super().query_plan(coords.shape[0]), coords)
+        if not self.use_planes(points.shape[0], extent):
+            program, tensors = super().whole_grid_program(points.shape[0])
+            return Plan(program, tuple(tensors), coords)
         planes = []
         for plane, (a, b) in _PLANES.items():
             u = self.factors[f"{plane}_{_AXIS[a]}"][lo[a]: hi[a] + 1]
@@ -146,11 +150,11 @@ class SixAxis(Field):
             planes.append(compose_plane(u, v, self.rank))
         program = single(list(_PLANES.values()), _PLANE_PROGRAM_TERMS, [1, 1, 1], self.channels)
         shift = torch.tensor(lo, dtype=coords.dtype, device=coords.device)
-        return program, planes, coords - shift
+        return Plan(program, tuple(planes), coords - shift)
 
-    def query_plan(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
+    def whole_grid_program(self, num_points: int) -> tuple[Program, list[torch.Tensor]]:
         if not self.use_planes(num_points):
-            return super().query_plan(num_points)
+            return super().whole_grid_program(num_points)
         program = single(list(_PLANES.values()), _PLANE_PROGRAM_TERMS, [1, 1, 1], self.channels)
         return program, self.composed_planes()
 

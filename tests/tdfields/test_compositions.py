@@ -25,6 +25,28 @@ def test_multires_concatenates_levels_in_order():
     assert m.num_parameters() == m.closed_form_parameters()
 
 
+@pytest.mark.parametrize("backend", ["torch", "numba"])
+def test_nested_multires_plans_natively_from_its_levels(backend):
+    """A stack inside a stack is planned from its levels too: one program over every grid, the query its plan."""
+    torch.manual_seed(0)
+    inner = tdfields.MultiResolution([tdfields.TriPlane(BOX, grid_shape=(4, 5, 6), channels=2),
+                                      tdfields.SixAxis(BOX, grid_shape=(9, 8, 7), channels=3, rank=2)])
+    m = tdfields.MultiResolution([tdfields.CP(BOX, grid_shape=(5, 5, 5), channels=4, rank=2), inner]).double()
+    x = torch.rand(300, 3, dtype=torch.float64)
+    with tdfields.kernels.use_backend(backend):
+        plan = tdfields.plan(m, x)
+        out = m(x)
+        assert torch.equal(out, tdfields.ops.evaluate(plan.program, plan.tensors, plan.coords))
+        parts = [level(x) for level in m.levels]
+    assert [g[1] for g in m.grids()] == [(5, 5, 5), (4, 5, 6), (9, 8, 7)]
+    assert plan.program.num_levels == 3 and plan.coords.shape == (3, 300, 3) and out.shape == (300, 9)
+    # the reference is exact; a fused kernel compiled for the whole program rounds as another fastmath build may
+    exact = {"rtol": 0, "atol": 0} if backend == "torch" else {}
+    torch.testing.assert_close(out, torch.cat(parts, -1), **exact)
+    with pytest.raises(AttributeError):  # a Plan is frozen
+        plan.coords = plan.coords * 2
+
+
 def test_hybrid_query_all_or_by_name():
     h = hybrid()
     x = torch.rand(5, 3)

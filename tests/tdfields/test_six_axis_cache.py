@@ -116,5 +116,5 @@ def test_no_grad_queries_outside_a_block_choose_the_cheaper_exact_path():
     f = _field()
     x = _points(20)
     with torch.no_grad():
-        program, tensors, _ = f.plan_query(tdfields.to_grid_coords(x, f.aabb, f.grid_shape))
+        tensors = f.plan_at(tdfields.to_grid_coords(x, f.aabb, f.grid_shape)[None]).tensors
     assert len(tensors) == 6  # 20 points: the factor path (composing planes would cost more)

@@ -53,7 +53,7 @@ def test_frozen_queries_still_use_the_cached_full_planes():
     f = _field("auto")
     x = torch.rand(50, 3, dtype=torch.float64) * 0.2
     with tdfields.frozen(f):
-        _, tensors, coords = f.plan_query(tdfields.to_grid_coords(x, f.aabb, f.grid_shape))
+        tensors = tdfields.plan(f, x).tensors
         assert [t.shape[:2] for t in tensors] == [(21, 11), (11, 16), (16, 21)]
         assert tensors[0] is f.composed_planes()[0]
 

@@ -1,5 +1,6 @@
 """World points to clamped grid coordinates for several levels at once: the fused form of
-:func:`tdfields.interpolation.to_grid_coords` (imported lazily, needs numba).
+:func:`tdfields.interpolation.to_grid_coords`, hand-written numba (imported lazily by
+:mod:`tdfields.kernels.numba.autograd`, needs numba).
 
 The reference builds the coordinates from a dozen broadcast ops on ``[N, 3]`` tensors, and their backward
 (``minimum``/``maximum`` tie handling) adds as many again: 5.6 ms of a 58 ms tracking iteration at room0 scale

@@ -1,11 +1,12 @@
-"""The fused kernels' autograd glue: query programs, compose Six-axis planes and map points to grid coordinates in
-generated numba code (CPU) or Triton (GPU), with first derivatives.
+"""The numba kernels' autograd Functions and their entry points (CPU, first derivatives only): query programs,
+compose Six-axis planes and map points to grid coordinates.
 
 Each ``torch.autograd.Function`` here hands detached, contiguous tensors to a kernel that
-:mod:`tdfields.kernels.generated` compiles for the exact program, widths and dtype, splits the points over
-:mod:`tdfields.kernels.threads`, and marks its gradients with :func:`tdfields.kernels.second_order.guard_second_order`.
-The entry points check their arguments; which one runs is decided by :mod:`tdfields.ops` (and
-:func:`compose_plane` here) through :func:`tdfields.kernels.use_fused` / :func:`tdfields.kernels.use_triton`.
+:mod:`tdfields.kernels.cache` compiles for the exact program, widths and dtype (or to the hand-written kernels of
+:mod:`tdfields.kernels.numba.coords`), splits the points over :mod:`tdfields.kernels.threads`, and marks its
+gradients with :func:`tdfields.kernels.second_order.guard_second_order`. The entry points check their arguments;
+which one runs is decided per call by :mod:`tdfields.ops` through :func:`tdfields.kernels.use_fused`. Importing
+this module needs no numba: the entry points raise a clear error where it is missing.
 """
 
 from __future__ import annotations
@@ -13,8 +14,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tdfields.kernels.backend import numba_module, triton_module, use_fused
-from tdfields.kernels.second_order import guard_second_order
+from tdfields.kernels.cache import backward_kernel, compose_kernels, forward_kernel
+from tdfields.kernels.dispatch import numba_available
+from tdfields.kernels.emitters import check_inputs
+from tdfields.kernels.second_order import FirstOrderQuery, guard_second_order
 from tdfields.kernels.threads import parts_for, run, split
 from tdfields.program import Program, single
 
@@ -25,6 +28,11 @@ _MAX_BUFFER_FLOATS = 1 << 24
 # pass touching the factors and their gradient buffers at once overflowed the last-level cache at room scale
 # (tri-plane 3 cm: 35 ms vs 14 + 13 ms in two passes, 40k points, 1 thread).
 _SPLIT_BACKWARD_FLOATS = 1 << 21
+
+
+def _require_numba() -> None:
+    if not numba_available():
+        raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
 
 
 def _dtype_name(dtype: torch.dtype) -> str:
@@ -51,11 +59,9 @@ def _sizes(program: Program, grids) -> np.ndarray:
     return sizes
 
 
-class _FusedProgram(torch.autograd.Function):
+class NumbaProgram(FirstOrderQuery):
     @staticmethod
     def forward(ctx, program, coords, *factors):
-        from tdfields.kernels.generated import forward_kernel
-
         dtype = factors[0].dtype
         grids = [_host(t) for t in factors]
         views = [_rows(g) for g in grids]
@@ -66,6 +72,7 @@ class _FusedProgram(torch.autograd.Function):
         kernel = forward_kernel(program, widths, _dtype_name(dtype))
         args = (*views, sizes, c.numpy(), out.numpy())
         run([lambda a=a, b=b: kernel(*args, a, b) for a, b in split(c.shape[1], parts_for(c.shape[1]))])
+        ctx.gradients = _numba_gradients
         ctx.program = program
         ctx.widths = widths
         ctx.sizes = sizes
@@ -73,55 +80,35 @@ class _FusedProgram(torch.autograd.Function):
         ctx.save_for_backward(c, *grids)
         return out
 
-    @staticmethod
-    def backward(ctx, grad_out):
-        with torch.no_grad():
-            grads = _FusedProgram._backward(ctx, grad_out)
-        return tuple(guard_second_order(g) for g in grads)
 
-    @staticmethod
-    def _backward(ctx, grad_out):
-        from tdfields.kernels.generated import backward_kernel
-
-        c, *grids = ctx.saved_tensors
-        want_coords = bool(ctx.needs_input_grad[1])
-        want = tuple(bool(w) for w in ctx.needs_input_grad[2:])
-        if not want_coords and not any(want):
-            return (None, None, *[None] * len(grids))
-        dtype = grids[0].dtype
-        n_points = c.shape[1]
-        total = sum(g.numel() for g, w in zip(grids, want) if w)
-        parts = parts_for(n_points)
-        # one scatter buffer set per thread pays off while it stays small next to the work; else one serial pass
-        if total * parts > _MAX_BUFFER_FLOATS:
-            parts = 1
-        rows = [(g.numel() // g.shape[-1], g.shape[-1]) for g in grids]
-        buffers = [[torch.zeros(rows[f], dtype=dtype) for f in range(len(grids)) if want[f]] for _ in range(parts)]
-        grad_coords = torch.zeros_like(c) if want_coords else torch.zeros((1, 1, 3), dtype=dtype)
-        views = [_rows(g) for g in grids]
-        go = _host(grad_out if grad_out.dtype == dtype else grad_out.to(dtype))
-        chans = np.asarray([ctx.widths[t[0]] // k for t, k in zip(ctx.program.terms, ctx.program.ranks)], np.int64)
-        common = (*views, ctx.sizes, chans, c.numpy(), go.numpy())
-        passes = [(want, want_coords)]
-        if want_coords and any(want) and sum(g.numel() for g in grids) > _SPLIT_BACKWARD_FLOATS:
-            passes = [(tuple(False for _ in want), True), (want, False)]
-        for want_f, want_c in passes:
-            kernel = backward_kernel(ctx.program, ctx.widths, want_f, want_c, _dtype_name(dtype))
-            run([lambda a=a, b=b, bufs=bufs: kernel(*common, *[t.numpy() for t in bufs] if any(want_f) else (),
-                                                    grad_coords.numpy(), a, b)
-                 for (a, b), bufs in zip(split(n_points, parts), buffers)])
-        summed = iter([sum(bs[1:], bs[0]) if parts > 1 else bs[0] for bs in zip(*buffers)])
-        grads = [next(summed).view_as(g) if w else None for g, w in zip(grids, want)]
-        return (None, grad_coords.to(ctx.coords_dtype) if want_coords else None, *grads)
-
-
-def _check_inputs(program: Program, factors, coords: torch.Tensor, kernel: str) -> None:
-    """What both generated kernels assume: the program's factors, ``[levels, N, 3]`` coordinates, <= 3 factors a term."""
-    program.check(factors)
-    if coords.dim() != 3 or coords.shape[0] != program.num_levels or coords.shape[2] != 3:
-        raise ValueError(f"coords must be [{program.num_levels}, N, 3], got {tuple(coords.shape)}")
-    if max(len(t) for t in program.terms) > 3:
-        raise ValueError(f"the {kernel} kernel multiplies at most 3 factors per term; use set_backend('torch')")
+def _numba_gradients(ctx, grad_out, c, grids, want_coords: bool, want: tuple[bool, ...]) -> tuple:
+    """The gradients of :class:`NumbaProgram` (``ctx.gradients``, see
+    :class:`tdfields.kernels.second_order.FirstOrderQuery`)."""
+    dtype = grids[0].dtype
+    n_points = c.shape[1]
+    total = sum(g.numel() for g, w in zip(grids, want) if w)
+    parts = parts_for(n_points)
+    # one scatter buffer set per thread pays off while it stays small next to the work; else one serial pass
+    if total * parts > _MAX_BUFFER_FLOATS:
+        parts = 1
+    rows = [(g.numel() // g.shape[-1], g.shape[-1]) for g in grids]
+    buffers = [[torch.zeros(rows[f], dtype=dtype) for f in range(len(grids)) if want[f]] for _ in range(parts)]
+    grad_coords = torch.zeros_like(c) if want_coords else torch.zeros((1, 1, 3), dtype=dtype)
+    views = [_rows(g) for g in grids]
+    go = _host(grad_out if grad_out.dtype == dtype else grad_out.to(dtype))
+    chans = np.asarray([ctx.widths[t[0]] // k for t, k in zip(ctx.program.terms, ctx.program.ranks)], np.int64)
+    common = (*views, ctx.sizes, chans, c.numpy(), go.numpy())
+    passes = [(want, want_coords)]
+    if want_coords and any(want) and sum(g.numel() for g in grids) > _SPLIT_BACKWARD_FLOATS:
+        passes = [(tuple(False for _ in want), True), (want, False)]
+    for want_f, want_c in passes:
+        kernel = backward_kernel(ctx.program, ctx.widths, want_f, want_c, _dtype_name(dtype))
+        run([lambda a=a, b=b, bufs=bufs: kernel(*common, *[t.numpy() for t in bufs] if any(want_f) else (),
+                                                grad_coords.numpy(), a, b)
+             for (a, b), bufs in zip(split(n_points, parts), buffers)])
+    summed = iter([sum(bs[1:], bs[0]) if parts > 1 else bs[0] for bs in zip(*buffers)])
+    grads = [next(summed).view_as(g) if w else None for g, w in zip(grids, want)]
+    return (None, grad_coords.to(ctx.coords_dtype) if want_coords else None, *grads)
 
 
 def fused_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Tensor:
@@ -135,30 +122,14 @@ def fused_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Ten
     Returns:
         ``[N, program.out_dim]``.
     """
-    if numba_module() is None:
-        raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
-    _check_inputs(program, factors, coords, "fused")
-    return _FusedProgram.apply(program, coords, *factors)
+    _require_numba()
+    check_inputs(program, factors, coords, "fused")
+    return NumbaProgram.apply(program, coords, *factors)
 
 
-def triton_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Tensor:
-    """Triton equivalent of :func:`tdfields.program.evaluate_reference` (first derivatives only).
-
-    Same arguments and result as :func:`fused_evaluate`; tensors on one CUDA device (or the CPU when
-    interpreting).
-    """
-    module = triton_module()
-    if module is None:
-        raise RuntimeError("the Triton kernel needs triton; pip install triton, or set_backend('torch')")
-    _check_inputs(program, factors, coords, "Triton")
-    return module.TritonProgram.apply(program, coords, *factors)
-
-
-class _FusedCompose(torch.autograd.Function):
+class NumbaCompose(torch.autograd.Function):
     @staticmethod
     def forward(ctx, u, v, rank):
-        from tdfields.kernels.generated import compose_kernels
-
         uc, vc = u.detach().contiguous(), v.detach().contiguous()
         channels = uc.shape[1] // rank
         plane = torch.empty(uc.shape[0], vc.shape[0], channels, dtype=uc.dtype)
@@ -172,8 +143,6 @@ class _FusedCompose(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_plane):
-        from tdfields.kernels.generated import compose_kernels
-
         uc, vc = ctx.saved_tensors
         want_u, want_v = bool(ctx.needs_input_grad[0]), bool(ctx.needs_input_grad[1])
         with torch.no_grad():
@@ -190,21 +159,18 @@ class _FusedCompose(torch.autograd.Function):
         return guard_second_order(gu if want_u else None), guard_second_order(gv), None
 
 
-def compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
-    """Rank-k plane from two line factors: ``u [n_a, k*C]``, ``v [n_b, k*C]`` -> ``[n_a, n_b, C]``,
-    ``P[a, b, c] = sum_r u[a, r*C + c] v[b, r*C + c]`` (rank-major, channel-minor factors).
-
-    The fused kernel where :func:`use_fused` allows it, else ``torch.einsum`` (the reference).
-    """
-    if use_fused(u, v):
-        return _FusedCompose.apply(u, v, rank)
-    return torch.einsum("akc,bkc->abc", u.reshape(u.shape[0], rank, -1), v.reshape(v.shape[0], rank, -1))
+def fused_compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
+    """Fused equivalent of :func:`tdfields.program.compose_plane_reference` (CPU, first derivatives only): the
+    rank-k plane ``[n_a, n_b, C]`` of two line factors ``u [n_a, k*C]``, ``v [n_b, k*C]``.
+    :func:`tdfields.ops.compose_plane` picks it or the reference per call."""
+    _require_numba()
+    return NumbaCompose.apply(u, v, rank)
 
 
-class _FusedGridCoords(torch.autograd.Function):
+class NumbaGridCoords(torch.autograd.Function):
     @staticmethod
     def forward(ctx, points, lo, extent, top):
-        from tdfields.kernels.coords import grid_coords_forward
+        from tdfields.kernels.numba.coords import grid_coords_forward
 
         p = _host(points)
         out = torch.empty(lo.shape[0], p.shape[0], 3, dtype=p.dtype)
@@ -216,7 +182,7 @@ class _FusedGridCoords(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad):
-        from tdfields.kernels.coords import grid_coords_backward
+        from tdfields.kernels.numba.coords import grid_coords_backward
 
         if not ctx.needs_input_grad[0]:
             return None, None, None, None
@@ -241,15 +207,14 @@ def fused_grid_coords(points: torch.Tensor, boxes, shapes) -> torch.Tensor:
     Returns:
         ``[L, N, 3]`` clamped grid coordinates, dtype of ``points``.
     """
-    if numba_module() is None:
-        raise RuntimeError("the fused CPU kernel needs numba; pip install numba, or set_backend('torch')")
+    _require_numba()
     dt = np.float32 if points.dtype == torch.float32 else np.float64
     # the per-level constants in numpy: a dozen tiny torch ops per query otherwise (boxes are buffers, no grad)
     box = np.stack([np.asarray(b.detach().cpu() if b.requires_grad else b.cpu(), dtype=dt) for b in boxes])
     lo = np.ascontiguousarray(box[:, :, 0])
     extent = np.ascontiguousarray(box[:, :, 1] - box[:, :, 0])
     top = np.asarray([[n - 1 for n in s] for s in shapes], dtype=dt)
-    return _FusedGridCoords.apply(points, lo, extent, top)
+    return NumbaGridCoords.apply(points, lo, extent, top)
 
 
 def fused_interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""Write the numba source of a fused kernel specialised to one :class:`tdfields.program.Program`.
+"""Write the numba source of a fused kernel specialised to one :class:`tdfields.program.Program` (CPU).
 
 A generic kernel that walks the program's metadata at run time spends most of its time on that bookkeeping
 (measured 3-4x slower than a hand-written CP kernel). Here the structure is baked into straight-line code: the
@@ -14,65 +14,37 @@ Generated functions (all arrays C-contiguous; factors as 2-D ``[rows, width]`` v
 * ``backward(F0, ..., sizes, chans, coords, grad_out, G0, ..., grad_coords, start, stop)``: one ``G`` buffer
   ``[rows, width]`` per factor whose gradient is wanted (accumulated into), ``grad_coords [L, N, 3]`` (written
   only when wanted).
+* ``compose_forward`` / ``compose_backward`` (:func:`compose_source`): a Six-axis plane from two line factors.
 
-Both are serial and release the GIL: the caller runs one contiguous point range per thread, each backward range
+All are serial and release the GIL: the caller runs one contiguous point range per thread, each backward range
 with its own ``G`` buffers (summed afterwards), so the scatter needs no atomics.
 
 ``sizes [n_factors, 3]`` holds each factor's spatial sizes, ``chans [n_terms]`` each term's channel count.
+:mod:`tdfields.kernels.cache` compiles and caches what this module writes.
 """
 
 from __future__ import annotations
 
+from tdfields.kernels.emitters import active_factors, coordinate_axes, corner_setup, output_groups
 from tdfields.program import Program
 
 KERNEL_VERSION = 8
 
-
-def _corner_setup(f: int, axes: tuple[int, ...], level: int, with_derivatives: bool) -> list[str]:
-    """Lines computing factor f's corner rows ``r{f}_{k}``, weights ``w{f}_{k}`` and ``dw{f}_{k}_{a}``."""
-    nd = len(axes)
-    lines = []
-    for a, axis in enumerate(axes):
-        lines += [
-            f"q = coords[{level}, n, {axis}]",
-            f"i{f}_{a} = int(q)",
-            f"if i{f}_{a} > F{f}s{a} - 2:",
-            f"    i{f}_{a} = F{f}s{a} - 2",
-            f"if i{f}_{a} < 0:",
-            f"    i{f}_{a} = 0",
-            f"t{f}_{a} = DT(q - i{f}_{a})",
-        ]
-    return lines + corner_lines(f, [f"F{f}s{a}" for a in range(nd)], "ONE", with_derivatives)
+# the lower corner index, clamped to the grid, and the fraction past it, in the arrays' dtype
+_INDEX = [
+    "q = coords[{level}, n, {axis}]",
+    "i{f}_{a} = int(q)",
+    "if i{f}_{a} > F{f}s{a} - 2:",
+    "    i{f}_{a} = F{f}s{a} - 2",
+    "if i{f}_{a} < 0:",
+    "    i{f}_{a} = 0",
+    "t{f}_{a} = DT(q - i{f}_{a})",
+]
 
 
-def corner_lines(f: int, sizes: list[str], one: str, with_derivatives: bool, constant=lambda value: value) -> list[str]:
-    """From the lower indices ``i{f}_{a}`` and fractions ``t{f}_{a}`` already in scope: the base row ``b{f}``, the
-    ``2**d`` corner rows ``r{f}_{k}`` (axis 0 the most significant bit of ``k``), their weights ``w{f}_{k}`` and,
-    if asked, the weights' derivatives ``dw{f}_{k}_{a}`` along each axis. Shared by the numba and Triton writers.
-
-    Args:
-        sizes: the source expression of the factor's size along each of its axes.
-        one: the source of the literal 1 in the kernel's dtype.
-        constant: wraps a derivative that is a bare constant (a line factor's +-1), for kernels that need it
-            shaped like the other per-point values.
-    """
-    nd = len(sizes)
-    lines = []
-    # row-major strides of the factor's spatial dims, in rows of the [rows, width] view
-    strides = [" * ".join(sizes[a + 1:]) or "1" for a in range(nd)]
-    base = " + ".join(f"i{f}_{a} * {strides[a]}" if strides[a] != "1" else f"i{f}_{a}" for a in range(nd))
-    lines.append(f"b{f} = {base}")
-    for k in range(1 << nd):
-        bits = [(k >> (nd - 1 - a)) & 1 for a in range(nd)]
-        offset = " + ".join(strides[a] for a in range(nd) if bits[a])
-        lines.append(f"r{f}_{k} = b{f}" + (f" + {offset}" if offset else ""))
-        factors = [f"t{f}_{a}" if bits[a] else f"({one} - t{f}_{a})" for a in range(nd)]
-        lines.append(f"w{f}_{k} = " + " * ".join(factors))
-        if with_derivatives:
-            for a in range(nd):
-                parts = [(one if bits[b] else f"-{one}") if b == a else factors[b] for b in range(nd)]
-                lines.append(f"dw{f}_{k}_{a} = " + (" * ".join(parts) if nd > 1 else constant(parts[0])))
-    return lines
+def _corners(program: Program, with_derivatives: bool) -> list[str]:
+    """Lines computing every factor's corner rows ``r{f}_{k}``, weights ``w{f}_{k}`` and ``dw{f}_{k}_{a}``."""
+    return corner_setup(program, with_derivatives, _INDEX, "F{f}s{a}", "ONE")
 
 
 def _interp(f: int, nd: int, j: str) -> str:
@@ -89,7 +61,7 @@ def _shape_lines(program: Program) -> list[str]:
 
 # Every scalar is kept in the arrays' dtype (DT): a bare 1.0 or an int in the weight arithmetic promoted the
 # whole loop to float64 with conversions at every load, measured 4x slower for float32 factors.
-_HEADER = ["# generated by tdfields.kernels.codegen; do not edit", "import numpy as np",
+_HEADER = ["# generated by tdfields.kernels.numba.source; do not edit", "import numpy as np",
            "from numba import njit", "from numpy import {dtype} as DT", "", "ONE = DT(1.0)", "ZERO = DT(0.0)", "", ""]
 
 
@@ -97,6 +69,8 @@ def _header(dtype: str) -> list[str]:
     if dtype not in ("float32", "float64"):
         raise ValueError(f"kernels are generated for float32 and float64, not {dtype}")
     return [line.format(dtype=dtype) for line in _HEADER]
+
+
 # boundscheck=True turns every out-of-range index into an IndexError instead of a silent stray access: the
 # tests compile a checked variant (TDFIELDS_KERNEL_BOUNDSCHECK=1) to prove the generated indexing stays inside.
 # Serial nogil kernels over a point range; the caller runs one range per thread. numba's parallel=True compiled
@@ -106,17 +80,6 @@ _DECORATOR = "@njit(nogil=True, fastmath=True, cache=True{checked})"
 
 def _decorator(checked: bool) -> str:
     return _DECORATOR.format(checked=", boundscheck=True" if checked else "")
-
-
-def _groups(program: Program, widths: tuple[int, ...]) -> list[tuple[int, int, list[tuple[tuple[int, ...], int]]]]:
-    """Terms grouped by output offset: ``[(offset, C, [(term, rank), ...]), ...]`` in program order."""
-    groups: dict[int, tuple[int, list]] = {}
-    for term, k, off in zip(program.terms, program.ranks, program.offsets):
-        C = widths[term[0]] // k
-        if off in groups and groups[off][0] != C:
-            raise ValueError(f"terms writing at offset {off} disagree on their channel count")
-        groups.setdefault(off, (C, []))[1].append((term, k))
-    return [(off, C, terms) for off, (C, terms) in groups.items()]
 
 
 # Loop shape. Every channel loop is the outer loop and the rank sum the inner one, both with compile-time trip
@@ -131,10 +94,26 @@ def _channel_outer(terms, C: int) -> bool:
     return max(k for _, k in terms) * C <= 128
 
 
+def _forward_group(program: Program, off: int, C: int, terms) -> list[str]:
+    """The lines writing output channels ``[off, off + C)`` of point ``n``: the sum of ``terms``."""
+    def product(term):
+        return " * ".join(f"({_interp(f, len(program.factor_axes[f]), 'j')})" for f in term)
+
+    if _channel_outer(terms, C):
+        lines = [f"for c in range({C}):", "    s = ZERO"]
+        for term, k in terms:
+            lines += [f"    for r in range({k}):", f"        j = r * {C} + c", f"        s += {product(term)}"]
+        return lines + [f"    out[n, {off} + c] = s"]
+    lines = [f"for c in range({C}):", f"    out[n, {off} + c] = ZERO"]
+    for term, k in terms:
+        lines += [f"for r in range({k}):", f"    for c in range({C}):", f"        j = r * {C} + c",
+                  f"        out[n, {off} + c] += {product(term)}"]
+    return lines
+
+
 def forward_source(program: Program, widths: tuple[int, ...], dtype: str = "float32", checked: bool = False) -> str:
     """Python source of ``forward`` specialised to ``program`` and the factors' widths (see the module doc)."""
-    nf = len(program.factor_axes)
-    F = ", ".join(f"F{f}" for f in range(nf))
+    F = ", ".join(f"F{f}" for f in range(len(program.factor_axes)))
     out = [
         *_header(dtype),
         _decorator(checked),
@@ -142,24 +121,64 @@ def forward_source(program: Program, widths: tuple[int, ...], dtype: str = "floa
         *["    " + s for s in _shape_lines(program)],
         "    for n in range(start, stop):",
     ]
-    body = []
-    for f, axes in enumerate(program.factor_axes):
-        body += _corner_setup(f, axes, program.factor_level[f], False)
-    for off, C, terms in _groups(program, widths):
-        if _channel_outer(terms, C):
-            body += [f"for c in range({C}):", "    s = ZERO"]
-            for term, k in terms:
-                prod = " * ".join(f"({_interp(f, len(program.factor_axes[f]), 'j')})" for f in term)
-                body += [f"    for r in range({k}):", f"        j = r * {C} + c", f"        s += {prod}"]
-            body.append(f"    out[n, {off} + c] = s")
-        else:
-            body += [f"for c in range({C}):", f"    out[n, {off} + c] = ZERO"]
-            for term, k in terms:
-                prod = " * ".join(f"({_interp(f, len(program.factor_axes[f]), 'j')})" for f in term)
-                body += [f"for r in range({k}):", f"    for c in range({C}):", f"        j = r * {C} + c",
-                         f"        out[n, {off} + c] += {prod}"]
+    body = _corners(program, False)
+    for off, C, terms in output_groups(program, widths):
+        body += _forward_group(program, off, C, terms)
     out += ["        " + s for s in body]
     return "\n".join(out) + "\n"
+
+
+# a point whose output gradient row is all zero adds nothing: skip it (see backward_source)
+_SKIP_DEAD_POINT = ["live = False", "for c in range({out_dim}):", "    if grad_out[n, c] != ZERO:",
+                    "        live = True", "        break", "if not live:", "    continue"]
+
+
+def _backward_head(program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...], dtype: str,
+                   checked: bool) -> list[str]:
+    """The header, signature and set-up of ``backward``, down to its point loop: sizes, each term's channel
+    count ``C{t}`` and columns ``K{t}``, one scratch row ``gs{i}`` per factor position in a term."""
+    nf = len(program.factor_axes)
+    F = ", ".join(f"F{f}" for f in range(nf))
+    G = "".join(f"G{f}, " for f in range(nf) if want_factors[f])
+    max_kc = max(widths[t[0]] for t in program.terms)
+    max_t = max(len(t) for t in program.terms)
+    return [
+        *_header(dtype),
+        _decorator(checked),
+        f"def backward({F}, sizes, chans, coords, grad_out, {G}grad_coords, start, stop):",
+        *["    " + s for s in _shape_lines(program)],
+        *[f"    C{t} = chans[{t}]" for t in range(len(program.terms))],
+        *[f"    K{t} = {k} * C{t}" for t, k in enumerate(program.ranks)],
+        *[f"    gs{i} = np.empty({max_kc}, dtype=grad_out.dtype)" for i in range(max_t)],
+        "    for n in range(start, stop):",
+    ]
+
+
+def _backward_term(program: Program, t: int, want_factors: tuple[bool, ...], want_coords: bool) -> list[str]:
+    """Term ``t``'s share of ``backward`` at point ``n``: its output-side gradients into the scratch rows, then
+    one loop per wanted factor and corner (the scatter) and per axis (the coordinate gradient)."""
+    term, k, off = program.terms[t], program.ranks[t], program.offsets[t]
+    active = active_factors(term, want_factors, want_coords)
+    if not active:
+        return []
+    C = f"C{t}"
+    inner = [f"v{f} = {_interp(f, len(program.factor_axes[f]), 'j')}" for f in term] if len(term) > 1 else []
+    for i in active:
+        inner.append(f"gs{i}[j] = grad_out[n, {off} + c]" + "".join(f" * v{o}" for o in term if o != term[i]))
+    lines = [f"for r in range({k}):", f"    for c in range({C}):", f"        j = r * {C} + c",
+             *["        " + x for x in inner]]
+    for i in active:
+        f = term[i]
+        corners = range(1 << len(program.factor_axes[f]))
+        if want_factors[f]:
+            for kk in corners:
+                lines += [f"for j in range(K{t}):", f"    G{f}[r{f}_{kk}, j] += w{f}_{kk} * gs{i}[j]"]
+        if want_coords:
+            lv = program.factor_level[f]
+            for a, axis in enumerate(program.factor_axes[f]):
+                deriv = " + ".join(f"dw{f}_{kk}_{a} * F{f}[r{f}_{kk}, j]" for kk in corners)
+                lines += [f"for j in range(K{t}):", f"    d_{lv}_{axis} += gs{i}[j] * ({deriv})"]
+    return lines
 
 
 def backward_source(program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...],
@@ -181,63 +200,15 @@ def backward_source(program: Program, widths: tuple[int, ...], want_factors: tup
     of them samples of rays without depth, the rest points where one hidden layer of the decoder is all inactive),
     0.81x the time again. Its coordinate gradient stays the zero the caller allocated.
     """
-    nf = len(program.factor_axes)
-    F = ", ".join(f"F{f}" for f in range(nf))
-    wanted = [f for f in range(nf) if want_factors[f]]
-    G = "".join(f"G{f}, " for f in wanted)
-    max_kc = max(widths[t[0]] for t in program.terms)
-    max_t = max(len(t) for t in program.terms)
-    out = [
-        *_header(dtype),
-        _decorator(checked),
-        f"def backward({F}, sizes, chans, coords, grad_out, {G}grad_coords, start, stop):",
-        *["    " + s for s in _shape_lines(program)],
-        *[f"    C{t} = chans[{t}]" for t in range(len(program.terms))],
-        *[f"    K{t} = {k} * C{t}" for t, k in enumerate(program.ranks)],
-        *[f"    gs{i} = np.empty({max_kc}, dtype=grad_out.dtype)" for i in range(max_t)],
-        "    for n in range(start, stop):",
-    ]
-    body = [
-        "live = False",
-        f"for c in range({program.out_dim}):",
-        "    if grad_out[n, c] != ZERO:",
-        "        live = True",
-        "        break",
-        "if not live:",
-        "    continue",
-    ]
-    levels_axes = set()
-    for f, axes in enumerate(program.factor_axes):
-        body += _corner_setup(f, axes, program.factor_level[f], want_coords)
-        for a in axes:
-            levels_axes.add((program.factor_level[f], a))
+    out = _backward_head(program, widths, want_factors, dtype, checked)
+    body = [line.format(out_dim=program.out_dim) for line in _SKIP_DEAD_POINT] + _corners(program, want_coords)
+    axes = coordinate_axes(program)
     if want_coords:
-        body += [f"d_{lv}_{a} = ZERO" for lv, a in sorted(levels_axes)]
-    for t, (term, k, off) in enumerate(zip(program.terms, program.ranks, program.offsets)):
-        C = f"C{t}"
-        active = [i for i, f in enumerate(term) if want_factors[f] or want_coords]
-        if not active:
-            continue
-        body += [f"for r in range({k}):", f"    for c in range({C}):", f"        j = r * {C} + c"]
-        inner = []
-        if len(term) > 1:
-            inner += [f"v{f} = {_interp(f, len(program.factor_axes[f]), 'j')}" for f in term]
-        for i in active:
-            inner.append(f"gs{i}[j] = grad_out[n, {off} + c]" + "".join(f" * v{o}" for o in term if o != term[i]))
-        body += ["        " + x for x in inner]
-        for i in active:
-            f = term[i]
-            nd = len(program.factor_axes[f])
-            if want_factors[f]:
-                for kk in range(1 << nd):
-                    body += [f"for j in range(K{t}):", f"    G{f}[r{f}_{kk}, j] += w{f}_{kk} * gs{i}[j]"]
-            if want_coords:
-                lv = program.factor_level[f]
-                for a, axis in enumerate(program.factor_axes[f]):
-                    deriv = " + ".join(f"dw{f}_{kk}_{a} * F{f}[r{f}_{kk}, j]" for kk in range(1 << nd))
-                    body += [f"for j in range(K{t}):", f"    d_{lv}_{axis} += gs{i}[j] * ({deriv})"]
+        body += [f"d_{lv}_{a} = ZERO" for lv, a in axes]
+    for t in range(len(program.terms)):
+        body += _backward_term(program, t, want_factors, want_coords)
     if want_coords:
-        body += [f"grad_coords[{lv}, n, {a}] = d_{lv}_{a}" for lv, a in sorted(levels_axes)]
+        body += [f"grad_coords[{lv}, n, {a}] = d_{lv}_{a}" for lv, a in axes]
     out += ["        " + x for x in body]
     return "\n".join(out) + "\n"
 

@@ -8,7 +8,6 @@ import torch
 
 import tdfields
 from tdfields import kernels
-from tdfields.kernels import backend as backend_module
 
 pytest.importorskip("triton")
 INTERPRET = os.environ.get("TRITON_INTERPRET", "") not in ("", "0")
@@ -86,9 +85,3 @@ def test_cpu_tensors_take_it_only_when_interpreting(monkeypatch):
         assert not kernels.use_triton(t)
         assert kernels.use_fused(t)  # CPU tensors fall back to the numba kernel
     assert not kernels.use_triton(t)  # other backends never pick it
-
-
-def test_missing_triton_is_a_clear_error(monkeypatch):
-    monkeypatch.setitem(backend_module._state, "triton", False)
-    with pytest.raises(RuntimeError, match="pip install triton"):
-        kernels.set_backend("triton")

@@ -1,9 +1,11 @@
-"""Compile, cache and load the kernels :mod:`tdfields.kernels.codegen` writes.
+"""Compile, cache and load the kernels :mod:`tdfields.kernels.numba.source` and :mod:`tdfields.kernels.triton.source`
+write.
 
 Each specialised kernel's source goes to a file named after the hash of its text in the cache folder
 (``$TDFIELDS_CACHE_DIR``, else ``$XDG_CACHE_HOME/tdfields``, else ``~/.cache/tdfields``; a temporary folder when
 none is writable) and is imported from there, so numba's own on-disk cache (``cache=True``) keeps the compiled
-machine code beside it: a program is compiled once per machine, not once per process.
+machine code beside it: a program is compiled once per machine, not once per process. Loaded modules are also
+kept in this process, keyed by everything their text depends on.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ import threading
 from pathlib import Path
 from types import ModuleType
 
-from tdfields.kernels.codegen import KERNEL_VERSION, backward_source, compose_source, forward_source
+from tdfields.kernels.numba import source as numba_source
+from tdfields.kernels.triton import source as triton_source
 from tdfields.program import Program
 
 _loaded: dict[tuple, ModuleType] = {}
@@ -26,16 +29,17 @@ _lock = threading.Lock()
 
 def cache_dir() -> Path:
     """The folder generated kernels are written to (created on first use)."""
+    version = numba_source.KERNEL_VERSION
     env = os.environ.get("TDFIELDS_CACHE_DIR")
     base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tdfields"
-    folder = base / f"kernels-v{KERNEL_VERSION}"
+    folder = base / f"kernels-v{version}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
         probe = folder / f".probe-{os.getpid()}"
         probe.write_text("")
         probe.unlink()
     except OSError:
-        folder = Path(tempfile.gettempdir()) / f"tdfields-kernels-v{KERNEL_VERSION}-{os.getuid()}"
+        folder = Path(tempfile.gettempdir()) / f"tdfields-kernels-v{version}-{os.getuid()}"
         folder.mkdir(parents=True, exist_ok=True)
     return folder
 
@@ -46,41 +50,44 @@ def bounds_checked() -> bool:
 
 
 def forward_kernel(program: Program, widths: tuple[int, ...], dtype: str):
-    """``forward`` specialised to this program, factor widths and dtype (``"float32"`` / ``"float64"``)."""
+    """The numba ``forward`` specialised to this program, factor widths and dtype (``"float32"`` / ``"float64"``)."""
     checked = bounds_checked()
     key = ("forward", program, widths, dtype, checked)
-    return _module(key, lambda: forward_source(program, widths, dtype, checked)).forward
+    return _module(key, lambda: numba_source.forward_source(program, widths, dtype, checked)).forward
 
 
 def backward_kernel(program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...], want_coords: bool,
                     dtype: str):
-    """``backward`` producing exactly the wanted gradients."""
+    """The numba ``backward`` producing exactly the wanted gradients."""
     checked = bounds_checked()
     key = ("backward", program, widths, want_factors, want_coords, dtype, checked)
-    return _module(key, lambda: backward_source(program, widths, want_factors, want_coords, dtype, checked)).backward
+    return _module(key, lambda: numba_source.backward_source(program, widths, want_factors, want_coords, dtype,
+                                                             checked)).backward
 
 
 def compose_kernels(rank: int, channels: int, dtype: str) -> ModuleType:
-    """``compose_forward`` / ``compose_backward`` for rank-k planes of C channels (Six-axis)."""
+    """The numba ``compose_forward`` / ``compose_backward`` for rank-k planes of C channels (Six-axis)."""
     checked = bounds_checked()
-    return _module(("compose", rank, channels, dtype, checked), lambda: compose_source(rank, channels, dtype, checked))
+    return _module(("compose", rank, channels, dtype, checked),
+                   lambda: numba_source.compose_source(rank, channels, dtype, checked))
 
 
 def triton_kernel(kind: str, program: Program, widths: tuple[int, ...], want_factors: tuple[bool, ...] = (),
                   want_coords: bool = False):
-    """The Triton ``forward`` or ``backward`` (``kind``) for this program and widths (see
-    :mod:`tdfields.kernels.triton_codegen`). Triton reads ``TRITON_INTERPRET`` when the module is executed, so the
-    key includes it: a test that switches the interpreter on gets its own copy."""
-    from tdfields.kernels import triton_codegen as tc
-
+    """The Triton ``forward`` or ``backward`` (``kind``) for this program and widths. Triton reads
+    ``TRITON_INTERPRET`` when the module is executed, so the key includes it: a test that switches the interpreter
+    on gets its own copy."""
     interpret = os.environ.get("TRITON_INTERPRET", "") not in ("", "0")
-    key = ("triton", tc.TRITON_KERNEL_VERSION, kind, program, widths, want_factors, want_coords, interpret)
+    key = ("triton", triton_source.TRITON_KERNEL_VERSION, kind, program, widths, want_factors, want_coords, interpret)
     if kind == "forward":
-        return _module(key, lambda: tc.forward_source(program, widths), interpret).forward
-    return _module(key, lambda: tc.backward_source(program, widths, want_factors, want_coords), interpret).backward
+        return _module(key, lambda: triton_source.forward_source(program, widths), interpret).forward
+    return _module(key, lambda: triton_source.backward_source(program, widths, want_factors, want_coords),
+                   interpret).backward
 
 
 def _module(key: tuple, make_source, salt: object = None) -> ModuleType:
+    """The module for ``key``: loaded in this process already, else its source (``make_source()``) written to the
+    cache folder under the hash of its text (and ``salt``) and imported from there."""
     module = _loaded.get(key)
     if module is not None:
         return module

@@ -1,4 +1,5 @@
-"""Which kernel a query may run: the selected backend and whether numba and Triton import on this machine.
+"""Backend choice: which kernel a query may run, from the selected backend and whether numba and Triton import on
+this machine. :mod:`tdfields.ops` asks :func:`use_triton` / :func:`use_fused` at every call.
 
 Backends, chosen with :func:`set_backend` or the ``TDFIELDS_BACKEND`` environment variable:
 
@@ -59,35 +60,25 @@ def get_backend() -> str:
     return _state["backend"]
 
 
-def _optional(key: str, name: str) -> ModuleType | None:
-    """The kernel module ``tdfields.kernels.<name>`` if it imports here, else None (tried once, remembered in
-    ``_state[key]``)."""
-    if _state[key] is None:
+def _optional(name: str) -> ModuleType | None:
+    """The library ``name`` (``"numba"``, ``"triton"``) if it imports here, else None (tried once, remembered in
+    ``_state[name]``). Its import is the check that the backend's kernels can run on this machine."""
+    if _state[name] is None:
         try:
-            _state[key] = importlib.import_module(f"tdfields.kernels.{name}")
+            _state[name] = importlib.import_module(name)
         except Exception:  # ImportError, or the library failing to initialise on an odd platform
-            _state[key] = False
-    return _state[key] or None
-
-
-def numba_module() -> ModuleType | None:
-    """:mod:`tdfields.kernels.cpu_numba` (numba imported), or None where numba does not import."""
-    return _optional("numba", "cpu_numba")
+            _state[name] = False
+    return _state[name] or None
 
 
 def numba_available() -> bool:
-    """Whether the numba CPU kernel can be used."""
-    return numba_module() is not None
-
-
-def triton_module() -> ModuleType | None:
-    """:mod:`tdfields.kernels.gpu_triton` (Triton imported), or None where triton does not import."""
-    return _optional("triton", "gpu_triton")
+    """Whether the numba CPU kernel can be used (``import numba`` works)."""
+    return _optional("numba") is not None
 
 
 def triton_available() -> bool:
     """Whether the Triton kernel can be used (``import triton`` works)."""
-    return triton_module() is not None
+    return _optional("triton") is not None
 
 
 def _interpreting() -> bool:

@@ -6,7 +6,6 @@ import torch
 import tdfields
 from tdfields import kernels
 from tdfields.interpolation import to_grid_coords
-from tdfields.kernels import threads
 from tdfields.ops import grid_coords
 
 BOXES = [torch.tensor([[-1.0, 2.0], [0.0, 1.5], [-0.5, 0.7]]), torch.tensor([[-1.2, 2.2], [-0.1, 1.5], [-0.5, 0.9]])]
@@ -51,7 +50,7 @@ def test_clamped_points_have_zero_gradient_and_nan_stays_nan():
     assert torch.equal(g[0], torch.zeros(3))
 
 
-def test_threaded_split_matches_single_thread(monkeypatch):
+def test_threaded_split_matches_single_thread(three_threads):
     p = _points(torch.float64, 9000).requires_grad_()
     w = torch.randn(2, 9000, 3, dtype=torch.float64)
 
@@ -61,13 +60,8 @@ def test_threaded_split_matches_single_thread(monkeypatch):
         return c, torch.autograd.grad(c, p, w)[0]
 
     base = run()
-    monkeypatch.setattr(threads, "_MIN_POINTS_PER_THREAD", 1000)
-    previous = torch.get_num_threads()
-    torch.set_num_threads(3)
-    try:
+    with three_threads():
         split = run()
-    finally:
-        torch.set_num_threads(previous)
     assert torch.equal(split[0], base[0]) and torch.equal(split[1], base[1])
 
 

@@ -1,4 +1,4 @@
-"""The fused CPU kernel against the pure-PyTorch reference, under fixed seeds."""
+"""The numba kernels (tdfields.kernels.numba.autograd) against the pure-PyTorch reference, under fixed seeds."""
 
 import pytest
 import torch
@@ -6,7 +6,8 @@ import torch
 import tdfields
 from tdfields import kernels
 from tdfields.interpolation import interpolate_reference
-from tdfields.kernels import fused, threads
+from tdfields.kernels.numba import autograd as numba_autograd
+from tdfields.ops import compose_plane
 
 pytestmark = pytest.mark.skipif(not kernels.numba_available(), reason="numba not installed")
 
@@ -32,7 +33,7 @@ def test_values_and_gradients_match_reference(shape, dtype, tol, wants):
 
 
 def test_large_grid_uses_single_buffer_and_stays_exact(monkeypatch):
-    monkeypatch.setattr(fused, "_MAX_BUFFER_FLOATS", 10)
+    monkeypatch.setattr(numba_autograd, "_MAX_BUFFER_FLOATS", 10)
     grid = torch.randn(20, 20, 4, dtype=torch.float64, requires_grad=True)
     coords = torch.rand(500, 2, dtype=torch.float64) * 19
     (ga,) = torch.autograd.grad(interpolate_reference(grid, coords).sum(), grid)
@@ -91,14 +92,6 @@ def test_second_derivative_raises_instead_of_silent_zero():
         (g,) = torch.autograd.grad(f(x).sum(), x, create_graph=True)
         with pytest.raises(RuntimeError, match="differentiate twice"):
             g.sum().backward()
-
-
-def test_backend_selection_errors():
-    with pytest.raises(ValueError, match="backend"):
-        kernels.set_backend("cuda-magic")
-    assert kernels.get_backend() in kernels.BACKENDS
-    with kernels.use_backend("torch"):
-        assert not kernels.use_fused(torch.zeros(2, 1), torch.zeros(1, 1))
 
 
 def _mixed_stack(dtype):
@@ -166,7 +159,7 @@ def test_second_derivative_through_a_larger_loss_raises():
             loss.backward()
 
 
-def test_two_pass_backward_and_thread_split_match_one_pass(monkeypatch):
+def test_two_pass_backward_and_thread_split_match_one_pass(monkeypatch, three_threads):
     """Large factors take coordinate and factor gradients in two passes, large batches run on several threads:
     both must give the single-pass, single-thread result."""
     torch.manual_seed(3)
@@ -179,14 +172,9 @@ def test_two_pass_backward_and_thread_split_match_one_pass(monkeypatch):
             return torch.autograd.grad(y.square().sum(), [x, *f.parameters()])
 
     base = grads()
-    monkeypatch.setattr(fused, "_SPLIT_BACKWARD_FLOATS", 0)
-    monkeypatch.setattr(threads, "_MIN_POINTS_PER_THREAD", 1000)
-    previous = torch.get_num_threads()
-    torch.set_num_threads(3)
-    try:
+    monkeypatch.setattr(numba_autograd, "_SPLIT_BACKWARD_FLOATS", 0)
+    with three_threads():
         split = grads()
-    finally:
-        torch.set_num_threads(previous)
     for a, b in zip(base, split):
         torch.testing.assert_close(b, a)
 
@@ -198,7 +186,7 @@ def test_fused_composition_matches_einsum(want):
     v = torch.randn(7, 4 * 8, dtype=torch.float64, requires_grad=want[1])
     ref = torch.einsum("akc,bkc->abc", u.view(11, 4, 8), v.view(7, 4, 8))
     with kernels.use_backend("numba"):
-        fused = kernels.compose_plane(u, v, 4)
+        fused = compose_plane(u, v, 4)
     torch.testing.assert_close(fused, ref)
     g = torch.randn_like(ref)
     inputs = [t for t, w in zip((u, v), want) if w]
