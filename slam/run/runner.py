@@ -28,10 +28,9 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-import yaml
-
 from slam.run.checkpoint import RESUME_KEYS, load_run, restore, save_checkpoint
 from slam.config import Config, config_from_dict, save_config
+from slam.config.presets import read_yaml
 from slam.errors import SlamInputError
 from slam.engine.observers import Observer
 from slam.run.outputs import trajectory_metrics, write_frames, write_mesh, write_metrics, write_trajectories
@@ -85,12 +84,9 @@ def resume_config(out: str | Path, overrides: dict | None = None) -> Config:
     path = Path(out) / "config.yaml"
     if not path.is_file():
         raise SlamInputError(f"{out}: not a run folder (no config.yaml); nothing to resume")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise SlamInputError(f"{path}: invalid YAML: {exc}") from None
-    if not isinstance(data, dict):
-        raise SlamInputError(f"{path}: not a config (a mapping of keys)")
+    data = read_yaml(path, "run config")
+    if not data:
+        raise SlamInputError(f"{path}: an empty config; nothing to resume")
     for key, value in (overrides or {}).items():
         if key not in RESUME_KEYS:
             raise SlamInputError(f"--resume continues a run with its own config: '{key}' would change what it "
