@@ -206,6 +206,14 @@ class TrackingConfig:
     relocalize_after: int = num(5, lo=0, hi=BIG)
     relocalize_keyframes: int = num(3, lo=1, hi=100)
     weights: LossWeights = field(default_factory=TRACKING_WEIGHTS)
+    # ours (slam/engine/gauss_newton.py): adam is ESLAM's tracker (iters, lr_r, lr_t, patience apply); gauss_newton
+    # solves the pose by Levenberg-Marquardt on one set of pixels: at most gn_iters loss evaluations, the damping
+    # starting at gn_damping, converged once a step moves the camera less than gn_step_m and gn_step_deg
+    optimizer: str = choice("adam", ("adam", "gauss_newton"))
+    gn_iters: int = num(10, lo=2, hi=1000)
+    gn_damping: float = num(1e-3, lo=0, hi=1e6)
+    gn_step_m: float = num(1e-4, lo=0, hi=1.0)
+    gn_step_deg: float = num(0.01, lo=0, hi=90.0)
 
 
 @dataclass

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from slam.core.camera import backproject
+from slam.core.pose import exp_se3
 
 
 @dataclass
@@ -74,23 +75,6 @@ def _normals(vert: torch.Tensor, depth: torch.Tensor, max_jump: float) -> tuple[
     n[1:-1, 1:-1] = -c / norm.clamp(min=1e-12)  # facing the camera: dx x dy points away for y-down images
     valid[1:-1, 1:-1] = ok
     return n, valid
-
-
-def _exp_se3(xi: torch.Tensor) -> torch.Tensor:
-    """``[6]`` twist (rotation vector, translation) -> ``[4, 4]`` (first-order translation, exact rotation)."""
-    w, t = xi[:3], xi[3:]
-    theta = w.norm()
-    K = torch.zeros(3, 3, dtype=xi.dtype, device=xi.device)
-    K[0, 1], K[0, 2], K[1, 0], K[1, 2], K[2, 0], K[2, 1] = -w[2], w[1], w[2], -w[0], -w[1], w[0]
-    if float(theta) < 1e-12:
-        R = torch.eye(3, dtype=xi.dtype, device=xi.device) + K
-    else:
-        R = (torch.eye(3, dtype=xi.dtype, device=xi.device) + torch.sin(theta) / theta * K
-             + (1 - torch.cos(theta)) / theta**2 * (K @ K))
-    T = torch.eye(4, dtype=xi.dtype, device=xi.device)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
 
 
 def _level_points(depth: torch.Tensor, cam: tuple[float, float, float, float],
@@ -191,7 +175,7 @@ def icp_relative_pose(
             if idx.numel() < 50:
                 return ICPResult(T.float(), idx.numel() / max(pts.shape[0], 1), float("inf"), False)
             xi, r = _gauss_newton_step(src, tgt, nrm)
-            T = _exp_se3(xi) @ T
+            T = exp_se3(xi) @ T
             inl = idx.numel() / pts.shape[0]
             rmse = float(torch.sqrt((r**2).mean()))
             if float(xi.norm()) < 1e-5:

@@ -151,3 +151,21 @@ def rotation_angle(R: torch.Tensor) -> torch.Tensor:
     """Angle in radians (a 0-d tensor of ``R``'s dtype) of a ``[3, 3]`` rotation matrix, e.g. the relative rotation
     ``R_a^T R_b`` between two cameras; rounding beyond [-1, 1] in the trace is clamped."""
     return torch.arccos(((R.trace() - 1) / 2).clamp(-1.0, 1.0))
+
+
+def exp_se3(xi: torch.Tensor) -> torch.Tensor:
+    """``[6]`` twist ``(rotation vector, translation)`` (radians, metres) -> ``[4, 4]`` rigid motion, exact in the
+    rotation and first-order in the translation; a pose update left-multiplies it: ``T <- exp_se3(xi) @ T``."""
+    w, t = xi[:3], xi[3:]
+    theta = w.norm()
+    K = torch.zeros(3, 3, dtype=xi.dtype, device=xi.device)
+    K[0, 1], K[0, 2], K[1, 0], K[1, 2], K[2, 0], K[2, 1] = -w[2], w[1], w[2], -w[0], -w[1], w[0]
+    if float(theta) < 1e-12:
+        R = torch.eye(3, dtype=xi.dtype, device=xi.device) + K
+    else:
+        R = (torch.eye(3, dtype=xi.dtype, device=xi.device) + torch.sin(theta) / theta * K
+             + (1 - torch.cos(theta)) / theta**2 * (K @ K))
+    T = torch.eye(4, dtype=xi.dtype, device=xi.device)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T

@@ -51,6 +51,20 @@ class RunState:
         return out
 
 
+@dataclass
+class TrackResult:
+    """``pose``: ``[7]`` best-loss pose; ``loss``: its loss (NaN if none was finite); ``ok``; ``message``: why it
+    stopped early; ``iters``: iterations run; ``inliers``: share of the rays kept by the outlier rule at the
+    best iteration."""
+
+    pose: torch.Tensor
+    loss: float
+    ok: bool
+    message: str = ""
+    iters: int = 0
+    inliers: float = float("nan")
+
+
 class TooManyBadFrames(SlamInputError):
     """More than ``data.max_bad_fraction`` of the frames read so far could not be read."""
 

@@ -12,8 +12,6 @@ non-finite loss ends the optimisation; if no finite loss was seen the caller fal
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 
 import tdfields
@@ -23,20 +21,10 @@ from slam.core.optim import VectorAdam
 from slam.core.pose import normalize_pose, pose_to_matrix
 from slam.core.camera import sample_pixels
 from slam.core.rendering import render_pixels
+from slam.engine.gauss_newton import track_frame_gn
+from slam.engine.state import TrackResult
 
-
-@dataclass
-class TrackResult:
-    """``pose``: ``[7]`` best-loss pose; ``loss``: its loss (NaN if none was finite); ``ok``; ``message``: why it
-    stopped early; ``iters``: iterations run; ``inliers``: share of the rays kept by the outlier rule at the
-    best iteration."""
-
-    pose: torch.Tensor
-    loss: float
-    ok: bool
-    message: str = ""
-    iters: int = 0
-    inliers: float = float("nan")
+__all__ = ["TrackResult", "evaluate_pose", "track_frame"]
 
 
 def _loss_at(scene, color, depth, intrinsics, c2w, cfg: Config, v, u, generator, perturb: bool):
@@ -81,11 +69,19 @@ def track_frame(
         init_pose: ``[7]`` (q, t) starting pose.
         cfg: resolved config (``tracking``, ``rendering``, ``scene.truncation``).
         generator: CPU generator for pixel and sample draws.
-        iters, patience: override ``tracking.iters`` / ``tracking.patience`` (recovery attempts).
+        iters, patience: override ``tracking.iters`` / ``tracking.patience`` (recovery attempts; with
+            ``tracking.optimizer: gauss_newton``, ``iters`` caps its loss evaluations).
 
     Returns:
         :class:`TrackResult` with the best-loss pose.
     """
+    if cfg.tracking.optimizer == "gauss_newton":
+        return track_frame_gn(scene, color, depth, intrinsics, init_pose, cfg, generator, iters)
+    return _track_adam(scene, color, depth, intrinsics, init_pose, cfg, generator, iters, patience)
+
+
+def _track_adam(scene, color, depth, intrinsics, init_pose, cfg: Config, generator, iters, patience) -> TrackResult:
+    """ESLAM's tracker: Adam over ``(q, t)``, fresh pixels every iteration, the best-loss pose returned."""
     tc = cfg.tracking
     iters, patience = (tc.iters if iters is None else iters), (tc.patience if patience is None else patience)
     device, (H, W) = depth.device, depth.shape

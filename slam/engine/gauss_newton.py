@@ -1,0 +1,182 @@
+"""Second-order tracking: Levenberg-Marquardt on the 6-DoF camera pose (``tracking.optimizer: gauss_newton``).
+
+The tracking loss is a weighted sum of squares (docs/slam.md, "Losses"): per sample the free-space residual
+``s - 1`` and the band residual ``z + s T - D``, per ray the depth residual ``d_hat - D`` and three colour
+residuals. Each residual depends on the pose only through the points ``p = o + z d`` of its ray, and a pose update
+``T <- exp(xi) T`` with ``xi = (omega, v)`` moves a point by ``omega x p + v``, so a residual's Jacobian is
+``[p x g, g]`` summed over the points it reads, with ``g`` its gradient with respect to the point. Those gradients
+come from four backward passes to the points (the SDF and the three colour channels: the field kernels' coordinate
+backward); the compositing in between is differentiated separately and chained (a ray's depth and colour depend on
+its own samples only). The normal equations ``(J^T W J + lambda diag) xi = -J^T W r`` (float64, 6 x 6) give the
+step; a step that does not lower the loss is refused and the damping raised.
+
+Unlike the Adam tracker (:mod:`slam.engine.tracker`) one set of pixels and one jitter of the samples is drawn per
+call, so every evaluation is of the same objective and the loss decides which step to keep. The call stops
+when a step moves the camera by less than ``gn_step_m`` metres and ``gn_step_deg`` degrees, or after ``iters``
+evaluations. Rays are kept where the starting pose sees their surface inside the box, and the outlier rule
+(``outlier_factor``) is applied once, at the start.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+import tdfields
+from slam.core.camera import pixel_directions, sample_pixels
+from slam.core.losses import total_loss, tracking_inliers
+from slam.core.pose import exp_se3, matrix_to_pose, normalize_pose, pose_to_matrix
+from slam.core.rendering import composite_weights, ray_box_exit, sample_depth_rays, sdf_to_alpha
+from slam.engine.state import TrackResult
+
+
+@dataclass
+class _Rays:
+    """The call's fixed rays: camera-frame directions ``[R, 3]``, sample depths ``z [R, N]``, measured depth
+    ``D [R]`` and colour ``C [R, 3]``."""
+
+    dirs_cam: torch.Tensor
+    z: torch.Tensor
+    D: torch.Tensor
+    C: torch.Tensor
+
+
+def _points(T: torch.Tensor, rays: _Rays) -> torch.Tensor:
+    """``[R, N, 3]`` world points of the samples for camera-to-world ``T`` ``[4, 4]``."""
+    dirs = rays.dirs_cam @ T[:3, :3].T
+    return T[:3, 3] + dirs[:, None, :] * rays.z[..., None]
+
+
+def _render(scene, pts: torch.Tensor, rays: _Rays, cutoff: float):
+    """SDF ``[R, N]``, colour ``[R, N, 3]`` at the points, and the depth / colour composited from detached copies
+    of them (the leaves ``s_l``, ``rgb_l``), so the compositing can be differentiated on its own."""
+    R, N, _ = pts.shape
+    flat = pts.reshape(-1, 3)
+    s = scene.sdf(flat).reshape(R, N)
+    s_l = s.detach().requires_grad_(True)
+    w = composite_weights(sdf_to_alpha(s_l, scene.beta))
+    keep = (w.detach() > cutoff).reshape(-1) if cutoff > 0 else None
+    if keep is None:
+        rgb = scene.rgb(flat).reshape(R, N, 3)
+    else:
+        rgb = flat.new_zeros(R * N, 3)
+        rgb[keep] = scene.rgb(flat[keep])
+        rgb = rgb.reshape(R, N, 3)
+    rgb_l = rgb.detach().requires_grad_(True)
+    depth = (w * rays.z).sum(-1)
+    color = (w[..., None] * rgb_l).sum(-2)
+    return s, rgb, s_l, rgb_l, w, depth, color
+
+
+def _loss(s, depth, color, rays: _Rays, cfg) -> torch.Tensor:
+    return total_loss(s, rays.z, depth, color, rays.D, rays.C, cfg.scene.truncation, cfg.tracking.weights)[0]
+
+
+def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg):
+    """``(H [6, 6], b [6])`` of the weighted normal equations at these points (float64)."""
+    T, wt = cfg.scene.truncation, cfg.tracking.weights
+    R, N = rays.z.shape
+    gs = torch.autograd.grad(s, pts, torch.ones_like(s), retain_graph=True)[0]  # [R, N, 3] d s / d p
+    d_ds = torch.autograd.grad(depth, s_l, torch.ones_like(depth), retain_graph=True)[0]  # [R, N]
+    rows, resid, weights = [], [], []
+    Dm = rays.D[:, None]
+    front = rays.z < Dm - T
+    center = (rays.z - Dm).abs() < 0.4 * T
+    tail = ((rays.z - Dm).abs() <= T) & ~center
+    sd = s.detach()
+    for mask, r, g, lam in ((front, sd - 1.0, gs, wt.fs), (center, rays.z + sd * T - Dm, T * gs, wt.center),
+                            (tail, rays.z + sd * T - Dm, T * gs, wt.tail)):
+        n = int(mask.sum())
+        if n and lam:
+            rows.append(torch.cat((torch.cross(pts[mask].detach(), g[mask], dim=-1), g[mask]), -1))
+            resid.append(r[mask])
+            weights.append(torch.full((n,), lam / n, dtype=sd.dtype))
+    p = pts.detach()
+    if wt.depth:
+        gd = d_ds[..., None] * gs
+        rows.append(torch.cat((torch.cross(p, gd, dim=-1).sum(1), gd.sum(1)), -1))
+        resid.append(depth.detach() - rays.D)
+        weights.append(torch.full((R,), wt.depth / R, dtype=sd.dtype))
+    if wt.color:
+        for c in range(3):
+            dc_ds = torch.autograd.grad(color[:, c], s_l, torch.ones_like(depth), retain_graph=True)[0]
+            grgb = torch.autograd.grad(rgb[..., c], pts, torch.ones_like(rgb[..., c]), retain_graph=c < 2)[0]
+            gc = dc_ds[..., None] * gs + w.detach()[..., None] * grgb
+            rows.append(torch.cat((torch.cross(p, gc, dim=-1).sum(1), gc.sum(1)), -1))
+            resid.append(color.detach()[:, c] - rays.C[:, c])
+            weights.append(torch.full((R,), wt.color / (3 * R), dtype=sd.dtype))
+    J, r, W = torch.cat(rows).double(), torch.cat(resid).double(), torch.cat(weights).double()
+    return J.T @ (W[:, None] * J), J.T @ (W * r)
+
+
+def _draw_rays(scene, color, depth, intrinsics, T, cfg, generator) -> _Rays | None:
+    """The call's pixels: drawn once, kept where the start pose sees their surface inside the box."""
+    tc = cfg.tracking
+    H, W = depth.shape
+    v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
+    v, u = v.to(depth.device), u.to(depth.device)
+    D, C = depth[v, u], color[v, u]
+    dirs_cam = pixel_directions(u.to(D.dtype), v.to(D.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                intrinsics.cy)
+    keep = (D > 0) & (ray_box_exit(T[:3, 3].expand(len(D), 3), dirs_cam @ T[:3, :3].T, scene.aabb) >= D)
+    if int(keep.sum()) < 10:
+        return None
+    # jittered once per call (rendering.perturb): every evaluation sees the same samples, and the discretisation of
+    # the composited depth does not bias the optimum the same way in every frame
+    z = sample_depth_rays(D[keep], cfg.rendering.n_stratified, cfg.rendering.n_importance, cfg.scene.truncation,
+                          perturb=cfg.rendering.perturb, generator=generator)
+    return _Rays(dirs_cam[keep], z, D[keep], C[keep])
+
+
+def _evaluate(scene, T, rays, cfg, jacobian: bool):
+    pts = _points(T, rays).requires_grad_(jacobian)
+    with torch.set_grad_enabled(jacobian):
+        out = _render(scene, pts, rays, cfg.rendering.color_cutoff)
+        s, rgb, s_l, rgb_l, w, depth, color = out
+        loss = float(_loss(s.detach(), depth.detach(), color.detach(), rays, cfg))
+        if not jacobian or not math.isfinite(loss):
+            return loss, depth.detach(), None
+        return loss, depth.detach(), _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays, cfg)
+
+
+def track_frame_gn(scene, color: torch.Tensor, depth: torch.Tensor, intrinsics, init_pose: torch.Tensor, cfg,
+                   generator: torch.Generator, iters: int | None = None) -> TrackResult:
+    """Estimate the camera-to-world pose of one frame by Levenberg-Marquardt (same arguments and result as
+    :func:`slam.engine.tracker.track_frame`; ``iters`` counts loss evaluations, at most ``tracking.gn_iters``)."""
+    tc = cfg.tracking
+    iters = tc.gn_iters if iters is None else iters
+    T = pose_to_matrix(init_pose.to(depth.device).float()).detach()
+    with tdfields.frozen(scene):
+        rays = _draw_rays(scene, color, depth, intrinsics, T, cfg, generator)
+        if rays is None:
+            return TrackResult(init_pose.clone(), float("nan"), False, "too few rays with valid depth inside the "
+                               "scene box")
+        _, rendered, _ = _evaluate(scene, T, rays, cfg, jacobian=False)
+        inl = tracking_inliers(rendered, rays.D, tc.outlier_factor)
+        rays = _Rays(rays.dirs_cam[inl], rays.z[inl], rays.D[inl], rays.C[inl])
+        inliers = float(inl.float().mean())
+        loss, _, terms = _evaluate(scene, T, rays, cfg, jacobian=True)
+        if terms is None:
+            return TrackResult(init_pose.clone(), float("nan"), False, "non-finite tracking loss", 1)
+        lam, it, message = tc.gn_damping, 2, ""
+        while it < iters:
+            H, b = terms
+            step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * torch.eye(6, dtype=H.dtype), -b)
+            T_new = exp_se3(step.to(T.dtype)) @ T
+            it += 1
+            new_loss, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
+            small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
+            if new_terms is not None and new_loss < loss:
+                T, loss, terms, lam = T_new, new_loss, new_terms, lam / 3.0
+                if small:
+                    message = "converged"
+                    break
+            else:
+                lam *= 4.0
+                if small or lam > 1e4:
+                    message = "converged" if small else "no step lowers the loss"
+                    break
+    pose = normalize_pose(matrix_to_pose(T.cpu()))
+    return TrackResult(pose, loss, True, message, it, inliers)
