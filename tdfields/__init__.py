@@ -36,7 +36,7 @@ from tdfields.multires import MultiResolution
 from tdfields.ops import interpolate
 from tdfields.program import Plan
 from tdfields.report import FieldRow, Report, report
-from tdfields.resize import resize
+from tdfields.resize import grow, resize
 from tdfields.six_axis import SixAxis
 from tdfields.step_scale import rate_scales, scaled_param_groups, step_scales
 from tdfields.triplane import TriPlane
@@ -72,6 +72,7 @@ __all__ = [
     "Report",
     "FieldRow",
     "resize",
+    "grow",
     "save",
     "load",
     "load_field",

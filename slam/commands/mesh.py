@@ -47,6 +47,7 @@ def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
 
     import tdfields
     from slam.config import config_from_dict
+    from slam.model.growth import fit_to_state
     from slam.model.scene import SceneModel
 
     path = Path(path)
@@ -59,6 +60,7 @@ def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
     cfg = config_from_dict(ckpt["config"], upgrade=True)  # a checkpoint of an older version may hold moved keys
     extra = ckpt["extra"]
     scene = SceneModel(cfg, torch.tensor(extra["aabb"]))
+    fit_to_state(scene, ckpt["state_dict"])  # a map whose box grew: its levels' own grids and boxes
     scene.load_state_dict(ckpt["state_dict"])
     scene.eval()
     return cfg, scene, extra

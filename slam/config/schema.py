@@ -141,7 +141,8 @@ class FieldSpec:
 @dataclass
 class SceneConfig:
     """Scene box and SDF model. ``bound``: ``[[x0,x1],[y0,y1],[z0,z1]]`` or ``auto`` (from the first frames'
-    depth, see ``bound_auto_*``). ``marching_cubes_bound``: null = the bound."""
+    depth, see ``bound_auto_*``). ``marching_cubes_bound``: null = the bound. ``grow*``: a box that grows (ours,
+    slam.engine.growth; ``grow: auto`` grows an ``auto`` bound and keeps a given one; true / false: always, never)."""
 
     bound: Any = "auto"
     marching_cubes_bound: Any = None
@@ -149,6 +150,9 @@ class SceneConfig:
     bound_auto_frames: int = num(10, **COUNT)
     bound_auto_margin: float = num(1.0, lo=0, hi=1000.0)
     bound_auto_percentile: float = num(99.0, lo=0, hi=100, lo_open=True)
+    grow: Any = choice("auto", ("auto", True, False))
+    grow_margin: float = num(0.3, lo=0, hi=1000.0)  # metres between a frame's depth and the box that grow it
+    grow_max_extent: float = num(20.0, **METRES)  # metres per axis the box never grows past (an event says so)
     truncation: float = num(0.06, **METRES)
     learnable_beta: bool = True
     beta_init: float = num(10.0, **POSITIVE)
@@ -228,8 +232,7 @@ class MappingConfig:
     lr_geometry: float = num(0.005, **RATE)
     lr_appearance: float = num(0.005, **RATE)
     # ours: "matched" scales each field factor's rate so one Adam step moves a product term's features as far as a
-    # plane's (tdfields.step_scale; planes and grids unchanged); "lift": only where that raises the rate; "none":
-    # ESLAM's rates as given
+    # plane's (tdfields.step_scale; planes, grids unchanged); "lift": only where that raises the rate; "none": ESLAM's
     lr_scaling: str = choice("none", ("none", "matched", "lift"))
     window_size: int = num(20, **COUNT)
     keyframe_selection: str = choice("overlap", ("overlap", "global"))
@@ -282,9 +285,8 @@ class Config:
     data: DataConfig = field(default_factory=DataConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
     geometry: FieldSpec = field(default_factory=FieldSpec)
-    appearance: FieldSpec = field(
-        default_factory=lambda: FieldSpec(kind="six_axis", cell_sizes=[0.24, 0.03], rank=16, channels=32)
-    )
+    appearance: FieldSpec = field(default_factory=lambda: FieldSpec(kind="six_axis", cell_sizes=[0.24, 0.03], rank=16,
+                                                                    channels=32))
     rendering: RenderingConfig = field(default_factory=RenderingConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)

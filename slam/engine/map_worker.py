@@ -14,7 +14,8 @@ The tracker never sees a half-written map: in parallel mode it tracks on its own
 overwritten only from a snapshot the mapper took at the end of a call (a ``state_dict`` copy, a few MB), while
 the mapper thread is already on to the next call or idle. Only the worker touches ``scene`` and the keyframes
 while a call runs; anything else that reads them (a checkpoint, a preview mesh) first waits with
-:meth:`MapWorker.wait_idle`.
+:meth:`MapWorker.wait_idle`. So does a growth of the scene box (:meth:`MapWorker.grow`), which grows the mapper's
+map, the tracker's copy and the maps pending calls left by the same samples, so the schedule is kept through it.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import torch
 
 from slam.engine.keyframes import Keyframe
 from slam.engine.mapper import MapResult, map_frame
+from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
 
 
 @dataclass
@@ -152,6 +154,21 @@ class MapWorker:
                 f.result()
                 self.wait_s += time.perf_counter() - t0
 
+    def grow(self, lower, upper) -> ScenePads:
+        """Grow the map's box by ``lower`` / ``upper`` metres per axis (:mod:`slam.model.growth`), between calls: it
+        waits for the call running, then grows the mapper's scene, the tracker's copy and the maps the pending
+        calls left by the same samples, so the schedule goes on handing the tracker the maps it names, grown."""
+        self.wait_idle()
+        pads = plan_growth(self.scene, lower, upper)
+        apply_growth(self.scene, pads)
+        if self.parallel:
+            apply_growth(self.track_scene, pads)
+            for _, item in self._queue:
+                done = item if isinstance(item, MapDone) else item.result()
+                if done.snapshot is not None:
+                    done.snapshot = pad_state(done.snapshot, pads)
+        return pads
+
     def state_dict(self) -> dict:
         """``{"pending", "applied_any", "track_scene"}``: the calls not yet applied (waited for, with their results
         and, in parallel mode, the map each left), whether any was applied, and the tracker's copy of the map
@@ -176,6 +193,7 @@ class MapWorker:
             RuntimeError: the tracker's map does not fit this scene (another config)."""
         if state["track_scene"] is not None:
             with torch.no_grad():
+                fit_to_state(self.track_scene, state["track_scene"])  # a grown map: its size first
                 self.track_scene.load_state_dict(state["track_scene"])
         self._applied_any = bool(state["applied_any"])
         self._queue = []

@@ -1,14 +1,19 @@
-"""Setting a run up: the device, the dataset a config names, the frames it processes, the automatic scene box."""
+"""Setting a run up: the device, the dataset a config names, the frames it processes, the scene box (automatic or
+given), and the data's fingerprint a resumed run must match."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from slam.config import Config
+from slam.engine.frames import readable_depth
 from slam.errors import SlamInputError
+
+log = logging.getLogger("slam")
 
 
 def resolve_device(name: str) -> torch.device:
@@ -101,3 +106,26 @@ def auto_bound(depths: list[torch.Tensor], c2w0: torch.Tensor, percentile: float
     r = float(np.percentile(vals.numpy(), percentile)) + margin
     c = c2w0[:3, 3].double().tolist()
     return [[c[a] - r, c[a] + r] for a in range(3)]
+
+
+def scene_bound(cfg: Config, ds, indices: list[int], first_depth, c2w0: torch.Tensor) -> list[list[float]]:
+    """The run's scene bound ``[3, 2]`` (metres): ``scene.bound`` as given, or with ``auto`` :func:`auto_bound` of the
+    first ``scene.bound_auto_frames`` selected frames' depth (``first_depth``: the first frame's, already read)."""
+    if cfg.scene.bound != "auto":
+        return [list(map(float, r)) for r in cfg.scene.bound]
+    k = max(1, min(cfg.scene.bound_auto_frames, len(indices)))
+    depths = [first_depth] + [readable_depth(ds, indices[i]) for i in range(1, k)]
+    bound = auto_bound([d for d in depths if d is not None], c2w0, cfg.scene.bound_auto_percentile,
+                       cfg.scene.bound_auto_margin)
+    log.info("bound=auto -> %s", [[round(v, 3) for v in r] for r in bound])
+    return bound
+
+
+def data_fingerprint(ds, indices: list[int]) -> dict:
+    """What must not change between a run and its resume: the frames processed and their files."""
+    names = []
+    for attr in ("color_paths", "depth_paths"):
+        paths = getattr(ds, attr, None)
+        if paths:
+            names += [Path(paths[i]).name for i in (indices[0], indices[-1])]
+    return {"frames": len(indices), "dataset_frames": len(ds), "files": names}

@@ -28,6 +28,7 @@ class RunState:
     prev_depth_k: int = -1  # position of the last trusted frame with depth (ICP's reference)
     reloc_tried_at: int = -1  # position of the last relocalisation attempt
     tracking: list = field(default_factory=list)  # per tracked frame: loss, iterations, inlier share
+    sizes: list = field(default_factory=list)  # per processed frame: [parameters, field bytes] of the scene then
     prev_depth: torch.Tensor | None = field(default=None, repr=False, metadata={"transient": True})
 
     def last_trusted(self) -> int:
@@ -48,6 +49,7 @@ class RunState:
         est = st.pop("est")
         out = cls(**st)
         out.est = [p.clone() for p in est]
+        out.sizes = [None] * (len(out.est) - len(out.sizes)) + out.sizes  # a checkpoint from before sizes were kept
         return out
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import time
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -27,18 +26,20 @@ from slam.config import Config
 from slam.errors import SlamInputError
 from slam.core.pose import matrix_to_pose, pose_to_matrix
 from slam.engine.frames import FrameSource, LoadedFrame, first_readable, readable_depth
+from slam.engine.growth import SceneGrowth, grow_box
 from slam.engine.keyframes import KeyframeStore
 from slam.engine.map_worker import MapJob, MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import keep_freed_memory, set_threads
-from slam.engine.setup import auto_bound, check_edges, frame_indices, initial_pose
+from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery
 from slam.engine.tracking_guard import TrackingGuard
 from slam.engine.view import KeyframeSnapshot, RunView
-from slam.model.scene import SceneModel, scene_aabb
+from slam.model.growth import fit_to_state
+from slam.model.scene import SceneModel, scene_aabb, scene_size
 
 log = logging.getLogger("slam")
 
@@ -76,10 +77,11 @@ class SLAM:
         self.intr = first.intrinsics
         check_edges(cfg, self.intr.height, self.intr.width)
         self.c2w0, self.c2w0_source = initial_pose(self.gt, self.indices)
-        self.bound = self._bound(first.depth)
+        self.bound = scene_bound(cfg, dataset, self.indices, first.depth, self.c2w0)
         self.mc_bound = cfg.scene.marching_cubes_bound or self.bound
         self.aabb = scene_aabb(self.bound, cfg.scene.bound_dividable)
         self.scene = SceneModel(cfg, self.aabb).to(self.device)
+        self.size = scene_size(self.scene)  # (parameters, field bytes), after each growth too
         self.keyframes = KeyframeStore(storage=cfg.mapping.keyframe_storage, max_keyframes=cfg.mapping.max_keyframes)
         self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
                                   ahead=cfg.data.prefetch)
@@ -87,17 +89,7 @@ class SLAM:
         self.guard = TrackingGuard(cfg.tracking)
         self.timeline = Timeline(dt=self._dt, keyframes=self._keyframes_when_idle,
                                  frame_of=lambda j: int(self.indices[j]), event=self._event)
-
-    def _bound(self, first_depth) -> list[list[float]]:
-        cfg = self.cfg
-        if cfg.scene.bound != "auto":
-            return [list(map(float, r)) for r in cfg.scene.bound]
-        k = max(1, min(cfg.scene.bound_auto_frames, len(self.indices)))
-        depths = [first_depth] + [readable_depth(self.ds, self.indices[i]) for i in range(1, k)]
-        bound = auto_bound([d for d in depths if d is not None], self.c2w0, cfg.scene.bound_auto_percentile,
-                           cfg.scene.bound_auto_margin)
-        log.info("bound=auto -> %s", [[round(v, 3) for v in r] for r in bound])
-        return bound
+        self.growth = SceneGrowth(cfg, self._event)
 
     # ----------------------------------------------------------------------------------------------- helpers
     def _event(self, k: int, what: str, **extra) -> None:
@@ -141,6 +133,7 @@ class SLAM:
         self.state.est.append(pose.cpu())
         self.state.trusted.append(trusted)
         mapped = self._submit(k, frame, trusted)
+        self.state.sizes.append(list(self.size))
         if not self.mapper.parallel:
             self._apply(self.mapper.sync(k + 1))
         self._check_bad_frames()
@@ -179,6 +172,7 @@ class SLAM:
         st, cfg = self.state, self.cfg
         if not (frame.ok and frame.has_depth and trusted):
             return False
+        self._grow(k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
         first = not st.initialized
         if not (first or k % cfg.mapping.every_frame == 0 or k == len(self.indices) - 1):
@@ -187,6 +181,16 @@ class SLAM:
                                   keyframe=first or k % cfg.mapping.keyframe_every == 0))
         st.initialized = True
         return True
+
+    def _grow(self, k: int, depth: torch.Tensor) -> None:
+        """Grow the scene box where frame ``k``'s depth nears it (:mod:`slam.engine.growth`): every copy of the map,
+        the bound and the marching-cubes bound alike, between mapping calls."""
+        step = self.growth.decide(k, depth, self.state.est[-1], self.intr, self.aabb)
+        if step is not None:
+            self.mapper.grow(step.lower, step.upper)
+            self.bound, self.mc_bound = grow_box(self.bound, step), grow_box(self.mc_bound, step)
+            self.aabb, self.size = self.scene.aabb.detach().cpu().clone(), scene_size(self.scene)
+            self.growth.grown(k, step, self.aabb, self.size)
 
     def finish(self) -> None:
         """Wait for the mapper and apply its last results: at the end of the sequence, before the final outputs.
@@ -243,23 +247,15 @@ class SLAM:
         poses = pose_to_matrix(self.keyframes.poses()).numpy() if frames else np.zeros((0, 4, 4))
         return KeyframeSnapshot(tuple(kf.index for kf in frames), poses, tuple(kf.metres() for kf in frames))
 
-    def fingerprint(self) -> dict:
-        """What must not change between a run and its resume: the frames processed and their files."""
-        names = []
-        for attr in ("color_paths", "depth_paths"):
-            paths = getattr(self.ds, attr, None)
-            if paths:
-                names += [Path(paths[i]).name for i in (self.indices[0], self.indices[-1])]
-        return {"frames": len(self.indices), "dataset_frames": len(self.ds), "files": names}
-
     def state_dict(self) -> dict:
         """The loop's state, composed of its parts' (after waiting for a mapping call in progress; pending calls
-        stay pending): the run state, the keyframes, the mapper's queue, the guard, the random streams and the
-        data's fingerprint. Plain tensors and numbers (``torch.load(weights_only=True)`` reads it back)."""
+        stay pending): the run state, the keyframes, the mapper's queue, the guard, the random streams, the boxes
+        as grown and the data's fingerprint. Plain tensors and numbers (``torch.load(weights_only=True)`` reads it)."""
         self.mapper.wait_idle()
         return {"state": self.state.state_dict(), **self.keyframes.state_dict(), **self.mapper.state_dict(),
                 "guard": self.guard.state_dict(), "rng": rng_state(self.gen, self.map_gen),
-                "fingerprint": self.fingerprint()}
+                "growth": {**self.growth.state_dict(), "bound": self.bound, "mc_bound": self.mc_bound,
+                           "aabb": self.aabb.clone()}, "fingerprint": data_fingerprint(self.ds, self.indices)}
 
     def load_state_dict(self, run: dict, scene: dict) -> None:
         """Put this freshly built system (same config and data) into a :meth:`state_dict`'s state, with the
@@ -268,11 +264,13 @@ class SLAM:
         Raises:
             SlamInputError: the data differ from the checkpointed run's, the map does not fit this config, or a
                 keyframe can no longer be read."""
-        if run["fingerprint"] != self.fingerprint():
+        fingerprint = data_fingerprint(self.ds, self.indices)
+        if run["fingerprint"] != fingerprint:
             raise SlamInputError(f"the data differ from the checkpointed run's ({run['fingerprint']} vs "
-                                 f"{self.fingerprint()}): resume with the same data folder and config")
+                                 f"{fingerprint}): resume with the same data folder and config")
         try:
             with torch.no_grad():
+                fit_to_state(self.scene, scene)  # a grown map: its size first
                 self.scene.load_state_dict(scene)
             self.mapper.load_state_dict(run)
         except RuntimeError as exc:  # missing keys or other shapes: not this config's scene
@@ -283,6 +281,11 @@ class SLAM:
         if self.state.prev_depth_k >= 0:
             self.state.prev_depth = self.frames.get(self.state.prev_depth_k).depth
         self.guard.load_state_dict(run["guard"])
+        grown = run.get("growth", {})  # absent in a checkpoint from before the box could grow
+        self.growth.load_state_dict(grown)
+        if "aabb" in grown:
+            self.bound, self.mc_bound, self.aabb = grown["bound"], grown["mc_bound"], grown["aabb"].clone()
+        self.size = scene_size(self.scene)
         set_rng_state(run["rng"], self.gen, self.map_gen)
 
     def _readable_images(self, k: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -90,6 +90,13 @@ def parameter_counts(model: SceneModel) -> dict[str, int]:
     return {"geometry": geo, "appearance": app, "decoders": total - geo - app, "total": total}
 
 
+def scene_size(model: SceneModel) -> tuple[int, int]:
+    """``(parameters, field_bytes)``: every trainable scalar of the scene, and the bytes its fields' factors hold
+    (from :func:`tdfields.report`; Adam keeps about three times the field bytes again while mapping)."""
+    rep = tdfields.report(model)
+    return rep.total_parameters, sum(row.bytes for row in rep.rows)
+
+
 def scene_aabb(bound, dividable: float) -> torch.Tensor:
     """ESLAM's enlarged bound (float32)."""
     return tdfields.enlarge_bounds(bound, multiple=dividable)

@@ -80,8 +80,9 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
 
 
 def write_frames(run, out: Path) -> None:
-    """``frames.csv``: one row per processed frame (position, dataset frame, wall seconds, trusted, and for tracked
-    frames the best loss, the iterations run and the inlier share)."""
+    """``frames.csv``: one row per processed frame (position, dataset frame, wall seconds, trusted, for tracked
+    frames the best loss, the iterations run and the inlier share, and the scene's parameters and field bytes after
+    the frame: they change where the box grew, :mod:`slam.engine.growth`)."""
     import csv
     import io
 
@@ -89,13 +90,15 @@ def write_frames(run, out: Path) -> None:
     tracked = {t["frame"]: t for t in st.tracking}
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["k", "frame", "seconds", "trusted", "tracking_loss", "tracking_iters", "tracking_inliers"])
+    w.writerow(["k", "frame", "seconds", "trusted", "tracking_loss", "tracking_iters", "tracking_inliers",
+                "parameters", "field_bytes"])
     for k in range(len(st.est)):
         i = int(run.indices[k])
         t = tracked.get(i, {})
         sec = st.frame_times[k] if k < len(st.frame_times) else ""
+        size = (st.sizes[k] if k < len(st.sizes) else None) or ("", "")  # None: resumed from an older checkpoint
         w.writerow([k, i, f"{sec:.4f}" if sec != "" else "", int(st.trusted[k]), t.get("loss", ""), t.get("iters", ""),
-                    t.get("inliers", "")])
+                    t.get("inliers", ""), *size])
     atomic_write_text(out / "frames.csv", buf.getvalue(), "per-frame table")
 
 

@@ -10,8 +10,10 @@ What is logged, on the ``frame`` timeline (the dataset's frame index):
 * ``world/trajectory/estimated``, ``world/trajectory/ground_truth``: ``LineStrips3D`` of the camera centres
   so far (metres), growing by one point a frame; ground truth only where it is finite.
 * ``world/mesh``: ``Mesh3D`` with vertex colours, the final mesh (and an optional preview every N keyframes).
+* ``world/scene_box``: ``Boxes3D``, the fields' box, logged at the start and again on every frame it grew.
 * ``metrics/ate_cm``: live ATE RMSE in cm (``Scalars``; frames where it is NaN are not logged);
-  ``metrics/frame_time_s``: the frame's wall time in seconds.
+  ``metrics/frame_time_s``: the frame's wall time in seconds; ``metrics/parameters``, ``metrics/field_bytes``: the
+  scene's size after the frame (it changes where the box grew).
 
 ``rerun-sdk`` is an optional dependency (the ``viewer`` extra): :func:`require_rerun` raises
 :class:`slam.errors.SlamInputError` naming the install command when it is missing.
@@ -167,6 +169,7 @@ class RerunObserver(Observer):
         self._est = _Track()
         self._gt = _Track()
         self._keyframes_seen = 0
+        self._box = None  # the scene box last logged
         #: wall seconds spent in this observer's logging calls (on_start, on_frame, on_finish, close)
         self.log_s = 0.0
 
@@ -242,6 +245,11 @@ class RerunObserver(Observer):
             rec.log("metrics/ate_cm", rr.Scalars(record.ate_m * 100.0))
         if math.isfinite(record.dt):
             rec.log("metrics/frame_time_s", rr.Scalars(record.dt))
+        self._log_box(run)
+        size = run.state.sizes[record.k] if record.k < len(run.state.sizes) else None
+        if size:
+            rec.log("metrics/parameters", rr.Scalars(float(size[0])))
+            rec.log("metrics/field_bytes", rr.Scalars(float(size[1])))
         if self.mesh_every and record.mapped:
             n = run.keyframe_count
             if n > self._keyframes_seen:
@@ -251,6 +259,12 @@ class RerunObserver(Observer):
 
                     # unculled: culling needs every frame's pose, and the run is not over
                     self._log_mesh(run_mesh(run, cull=False))
+
+    def _log_box(self, run) -> None:
+        box = run.aabb.detach().cpu().double().numpy()
+        if self._box is None or not np.array_equal(box, self._box):
+            self._box = box
+            self.rec.log("world/scene_box", self.rr.Boxes3D(mins=[box[:, 0]], sizes=[box[:, 1] - box[:, 0]]))
 
     def _log_images(self, record: FrameRecord) -> None:
         rr, rec = self.rr, self.rec

@@ -3,6 +3,9 @@ import pytest
 # a few-second SLAM run on the tiny sequence: every stage runs, nothing converges
 TINY = ["data.max_frames=6", "tracking.iters=3", "tracking.pixels=100", "mapping.iters=3",
         "mapping.iters_first=5", "mapping.pixels=200", "rendering.n_stratified=8", "rendering.n_importance=4"]
+# a box the tiny room's depth fits at first and nears on its x- side (margin 0.15 m) from about frame 5 on: with
+# 10 frames the box grows once, in parallel mode while the mapping call of frame 4 is pending
+GROWING = ["bound=[[-1.6,2.3],[-0.6,2.3],[-0.3,2.4]]", "scene.grow=true", "scene.grow_margin=0.15"]
 
 
 @pytest.fixture(scope="session")

@@ -61,3 +61,39 @@ def test_resize_rejects_both():
     f = make("cp")
     with pytest.raises(ValueError, match="not both"):
         tdfields.resize(f, grid_shape=(4, 4, 4), cell_size=0.1)
+
+
+def test_grow_copies_the_old_samples_and_keeps_the_function(kind):
+    """Growing by whole samples copies every old sample (and Adam's moments) bit for bit, and the field is the
+    same function wherever it was queried, outside the old box too (queries there were clamped to the border,
+    which the new samples copy)."""
+    f = make(kind).double()
+    x = torch.rand(200, 3, dtype=torch.float64) * 3 - 1  # inside the old box and around it
+    opt = torch.optim.Adam(f.parameters(), lr=1e-2)
+    f(x).square().mean().backward()
+    opt.step()
+    old = {n: p.detach().clone() for n, p in f.factors.items()}
+    moments = {n: opt.state[p]["exp_avg"].clone() for n, p in f.factors.items()}
+    old_box, old_shape = f.aabb.clone(), f.grid_shape
+    before = f(x).detach()
+    lower, upper = (2, 0, 1), (0, 3, 1)
+    tdfields.grow(f, lower, upper, optimizer=opt)
+    assert f.grid_shape == tuple(n + lo + hi for n, lo, hi in zip(old_shape, lower, upper))
+    assert f.num_parameters() == f.closed_form_parameters()
+    step = (old_box[:, 1] - old_box[:, 0]) / (torch.tensor(old_shape, dtype=torch.float64) - 1)
+    torch.testing.assert_close(f.aabb[:, 0], old_box[:, 0] - step * torch.tensor(lower, dtype=torch.float64))
+    torch.testing.assert_close(f.aabb[:, 1], old_box[:, 1] + step * torch.tensor(upper, dtype=torch.float64))
+    for name, spec in f.factor_specs().items():
+        inner = (*(slice(lower[a], lower[a] + old_shape[a]) for a in spec.axes), slice(None))
+        assert torch.equal(f.factors[name].detach()[inner], old[name])
+        assert torch.equal(opt.state[f.factors[name]]["exp_avg"][inner], moments[name])
+    torch.testing.assert_close(f(x), before)
+    opt.zero_grad()
+    f(x).square().mean().backward()
+    opt.step()  # would raise if state and parameters disagreed
+
+
+def test_grow_rejects_negative_counts():
+    f = make("cp")
+    with pytest.raises(ValueError, match="sample counts"):
+        tdfields.grow(f, (0, -1, 0), (0, 0, 0))

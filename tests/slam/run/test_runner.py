@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from slam.engine.observers import Observer
-from tests.slam.conftest import TINY
+from tests.slam.conftest import GROWING, TINY
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN = TINY[1:] + ["data.max_frames=10", "checkpoint_every=2"]  # TINY[0] is data.max_frames=6
@@ -159,6 +159,37 @@ def test_an_interrupt_with_a_mapping_call_pending_resumes_to_the_uninterrupted_r
         assert [p["k"] for p in pending] == ([4] if parallel == "true" and at == 5 else [])
         run_to_folder(cfg, out, progress=False, mesh=False, resume=True)
         assert _traj(out) == _traj(tmp_path / "full"), f"stopped after frame {at}"
+
+
+@pytest.mark.parametrize("parallel", ["true", "false"])
+def test_a_run_stopped_after_its_box_grew_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path, parallel):
+    """The checkpoint holds the grown map (and, in parallel mode, the grown maps of the calls still pending) and
+    the grown boxes; the resumed run rebuilds its scene at that size. frames.csv shows the size frame by frame, and
+    ``lrslam mesh`` rebuilds the grown map."""
+    import csv
+
+    from slam.commands.mesh import load_run_checkpoint
+    from slam.config import load_config
+    from slam.run.checkpoint import load_run
+    from slam.run.runner import RunInterrupted, run_to_folder
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, *GROWING, f"parallel={parallel}"])
+    full = run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
+    at = next(e["frame"] for e in full["events"] if "growth" in e)  # stride 1: frame index = position
+    out = tmp_path / "stopped"
+    with pytest.raises(RunInterrupted):
+        run_to_folder(cfg, out, progress=False, mesh=False, stop_after=at + 1)
+    extra = load_run(out / "checkpoint.pt")["extra"]
+    assert extra["aabb"][0][0] < -1.6 and extra["run"]["growth"]["aabb"].tolist() == extra["aabb"]
+    assert extra["marching_cubes_bound"][0][0] < -1.6 and extra["bound"][0][0] < -1.6
+    _, scene, _ = load_run_checkpoint(out / "checkpoint.pt")  # lrslam mesh: the grown map, at its size
+    assert scene.aabb.tolist() == extra["aabb"]
+    run_to_folder(cfg, out, progress=False, mesh=False, resume=True)
+    assert _traj(out) == _traj(tmp_path / "full")
+    sizes = [(int(r["parameters"]), int(r["field_bytes"])) for r in csv.DictReader((out / "frames.csv").open())]
+    full_rows = list(csv.DictReader((tmp_path / "full" / "frames.csv").open()))
+    assert sizes == [(int(r["parameters"]), int(r["field_bytes"])) for r in full_rows]
+    assert len(set(sizes[:at])) == 1 and sizes[at][0] > sizes[at - 1][0] and sizes[at][1] > sizes[at - 1][1]
 
 
 def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, capsys):

@@ -99,6 +99,12 @@ def test_recording_of_a_short_run(tiny_seq, tmp_path):
     assert ate[-1][1][0] == pytest.approx(100 * metrics["ate_rmse_m"], rel=1e-6)
     ft = data["/metrics/frame_time_s"]["Scalars:scalars"]
     assert [f for f, _ in ft] == frames and all(v[0] > 0 for _, v in ft)
+    # the scene's size every frame (as in frames.csv), and its box once (this box does not grow)
+    params = data["/metrics/parameters"]["Scalars:scalars"]
+    assert [f for f, _ in params] == frames and params[-1][1][0] == metrics["parameters"]["total"]
+    assert [f for f, _ in data["/metrics/field_bytes"]["Scalars:scalars"]] == frames
+    box = data["/world/scene_box"]
+    assert [f for f, _ in box["Boxes3D:half_sizes"]] == [0]
 
     # the final mesh, with a colour per vertex
     mesh = trimesh.load(tmp_path / "run" / "mesh.ply", process=False)
