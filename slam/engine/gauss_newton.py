@@ -1,6 +1,6 @@
 """Second-order tracking: Levenberg-Marquardt on the 6-DoF camera pose (``tracking.optimizer: gauss_newton``).
 
-The tracking loss is a weighted sum of squares (docs/slam.md, "Losses"): per sample the free-space residual
+The tracking loss is a weighted sum of squares (docs/slam.md, "The pipeline (as implemented)"): per sample the free-space residual
 ``s - 1`` and the band residual ``z + s T - D``, per ray the depth residual ``d_hat - D`` and three colour
 residuals. Each residual depends on the pose only through the points ``p = o + z d`` of its ray, and a pose update
 ``T <- exp(xi) T`` with ``xi = (omega, v)`` moves a point by ``omega x p + v``, so a residual's Jacobian is
