@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import itertools
 import json
 import math
 import platform
@@ -37,7 +38,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
-from tqdm import trange
+from tqdm import tqdm
 
 import tdfields
 
@@ -149,6 +150,16 @@ def ray_bounds(depth, origins, dirs, box) -> tuple[torch.Tensor, torch.Tensor]:
     return near, torch.maximum(far, near + 1e-3)  # a ray missing the box renders the background
 
 
+def prepare_views(args) -> dict:
+    """:func:`load_views` plus every pixel's ray (``origins``, ``dirs``), the scene ``box`` and the per-ray
+    ``near`` / ``far`` bounds: all that training and evaluation read."""
+    views = load_views(args)
+    views["origins"], views["dirs"] = camera_rays(views["poses"], views["intrinsics"])
+    views["box"] = scene_box(views, views["origins"], views["dirs"])
+    views["near"], views["far"] = ray_bounds(views["depth"], views["origins"], views["dirs"], views["box"])
+    return views
+
+
 # --- model ------------------------------------------------------------------------------------------------------
 def field_specs(kind: str, box: torch.Tensor, res: int, extra_rank: int = 0) -> tuple[dict, dict]:
     """tdfields specs of the density and appearance fields: ``res`` samples along the box's longest axis."""
@@ -166,15 +177,24 @@ def field_specs(kind: str, box: torch.Tensor, res: int, extra_rank: int = 0) -> 
 
 
 class RadianceField(torch.nn.Module):
-    """``[..., 3]`` world points (metres) -> density ``[...]`` (1/m) and colour ``[..., 3]`` in [0, 1]."""
+    """``[..., 3]`` world points (metres) -> density ``[...]`` (1/m) and colour ``[..., 3]`` in [0, 1].
 
-    def __init__(self, density_spec: dict | None = None, appearance_spec: dict | None = None):
+    The fields are built from tdfields specs, or given as modules (``density=``, ``appearance=``): anything that
+    maps world points to ``[..., out_dim]`` features and has ``out_dim`` and ``contains(points)``, e.g. another
+    library's encoding placed in the box (benchmarks/nerf_encodings.py). The heads take the fields' widths. With
+    neither, only the heads are built (at the default widths)."""
+
+    def __init__(self, density_spec: dict | None = None, appearance_spec: dict | None = None, *,
+                 density: torch.nn.Module | None = None, appearance: torch.nn.Module | None = None):
         super().__init__()
         if density_spec is not None:
-            self.density = tdfields.build(density_spec)
-            self.appearance = tdfields.build(appearance_spec)
-        self.density_head = tdfields.MLPDecoder(DENSITY_CHANNELS, 1, hidden=16, hidden_layers=1)
-        self.color_head = tdfields.MLPDecoder(APPEARANCE_CHANNELS, 3, hidden=32, output_activation="sigmoid")
+            density, appearance = tdfields.build(density_spec), tdfields.build(appearance_spec)
+        widths = (DENSITY_CHANNELS, APPEARANCE_CHANNELS)
+        if density is not None:
+            self.density, self.appearance = density, appearance
+            widths = (density.out_dim, appearance.out_dim)
+        self.density_head = tdfields.MLPDecoder(widths[0], 1, hidden=16, hidden_layers=1)
+        self.color_head = tdfields.MLPDecoder(widths[1], 3, hidden=32, output_activation="sigmoid")
 
     def forward(self, pts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         raw = self.density_head(self.density(pts)).squeeze(-1)
@@ -232,17 +252,27 @@ def render(model, o, d, near, far, samples: int, background: float, jitter: bool
     return color, (w * t).sum(-1) + (1 - acc) * far
 
 
-def train(model, rays: dict, args, label: str) -> float:
-    """Adam on random batches of ``args.rays`` training rays for ``args.steps`` steps; returns seconds."""
+def train(model, rays: dict, args, label: str, seconds: float | None = None) -> tuple[float, int]:
+    """Adam on random batches of ``args.rays`` training rays for ``args.steps`` steps or, with ``seconds``, until
+    that much wall time has passed (the rates then decay over the time instead of the steps); returns the seconds
+    and the steps trained."""
     fields = [*model.density.parameters(), *model.appearance.parameters()]
     heads = [*model.density_head.parameters(), *model.color_head.parameters()]
     opt = torch.optim.Adam([{"params": fields, "lr": args.lr}, {"params": heads, "lr": args.lr / 4}])
-    # TensoRF's schedule: rates decay to 1/10 over the run
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.1 ** (s / args.steps))
     gen = torch.Generator().manual_seed(args.seed)
     n, t0 = len(rays["o"]), time.perf_counter()
-    bar = trange(args.steps, desc=f"fit {label}", leave=False, disable=None)
+
+    def progress(step: int) -> float:  # fraction of the run done: of the steps, or of the wall time
+        return step / args.steps if seconds is None else min(1.0, (time.perf_counter() - t0) / seconds)
+
+    # TensoRF's schedule: rates decay to 1/10 over the run
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.1 ** progress(s))
+    bar = tqdm(range(args.steps) if seconds is None else itertools.count(), desc=f"fit {label}", leave=False,
+               disable=None)
+    done = 0
     for step in bar:
+        if seconds is not None and time.perf_counter() - t0 >= seconds:
+            break
         idx = torch.randint(n, (args.rays,), generator=gen).to(args.device)
         b = {key: v[idx] for key, v in rays.items()}
         rgb, depth = render(model, b["o"], b["d"], b["near"], b["far"], args.samples, args.background, True)
@@ -257,7 +287,8 @@ def train(model, rays: dict, args, label: str) -> float:
         sched.step()
         if step % 25 == 0 or step == args.steps - 1:
             bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{-10 * math.log10(max(mse.item(), 1e-10)):.2f}")
-    return time.perf_counter() - t0
+        done += 1
+    return time.perf_counter() - t0, done
 
 
 @torch.no_grad()
@@ -279,17 +310,24 @@ def evaluate(model, views: dict, test_ids: list[int], args, out: Path) -> dict:
     return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)), "psnr_per_view": psnrs}
 
 
+def training_rays(views: dict, device) -> tuple[dict, list[int], list[int]]:
+    """The rays of the training images as flat ``[R, ...]`` tensors (``o, d, rgb, depth, near, far``) on
+    ``device``, and the training and held-out image indices (every ``HOLD_OUT``-th image is held out)."""
+    train_ids = [i for i in range(len(views["color"])) if i % HOLD_OUT]
+    test_ids = [i for i in range(len(views["color"])) if i % HOLD_OUT == 0]
+    keys = {"o": "origins", "d": "dirs", "rgb": "color", "depth": "depth", "near": "near", "far": "far"}
+    rays = {k: views[v][train_ids].reshape(-1, *views[v].shape[3:]).to(device) for k, v in keys.items()}
+    return rays, train_ids, test_ids
+
+
 def run_kind(kind: str, views: dict, args, out: Path) -> dict:
     """Build, train and evaluate one kind; writes ``out/metrics.json`` and ``out/renders``; returns the metrics."""
     torch.manual_seed(args.seed)
     res, extra = fit_budget(kind, views["box"], args.budget, args.resolution) if args.budget else (args.resolution, 0)
     density_spec, appearance_spec = field_specs(kind, views["box"], res, extra)
     model = RadianceField(density_spec, appearance_spec).to(args.device)
-    train_ids = [i for i in range(len(views["color"])) if i % HOLD_OUT]
-    test_ids = [i for i in range(len(views["color"])) if i % HOLD_OUT == 0]
-    keys = {"o": "origins", "d": "dirs", "rgb": "color", "depth": "depth", "near": "near", "far": "far"}
-    rays = {k: views[v][train_ids].reshape(-1, *views[v].shape[3:]).to(args.device) for k, v in keys.items()}
-    seconds = train(model, rays, args, kind)
+    rays, train_ids, test_ids = training_rays(views, args.device)
+    seconds, _ = train(model, rays, args, kind)
     metrics = evaluate(model, views, test_ids, args, out)
     from slam.engine.runtime import cpu_name
 
@@ -379,10 +417,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    views = load_views(args)
-    views["origins"], views["dirs"] = camera_rays(views["poses"], views["intrinsics"])
-    views["box"] = scene_box(views, views["origins"], views["dirs"])
-    views["near"], views["far"] = ray_bounds(views["depth"], views["origins"], views["dirs"], views["box"])
+    views = prepare_views(args)
     k = views["intrinsics"]
     print(f"{views['name']}: {len(views['color'])} images {k.height}x{k.width}, every {HOLD_OUT}th held out, "
           f"box {[[round(v, 2) for v in r] for r in views['box'].tolist()]} m")
