@@ -33,6 +33,7 @@ from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import keep_freed_memory, set_threads
+from slam.engine.schedule import mapping_due
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery
@@ -175,8 +176,9 @@ class SLAM:
         self._grow(k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
         first = not st.initialized
-        if not (first or k % cfg.mapping.every_frame == 0 or k == len(self.indices) - 1):
+        if not mapping_due(k, st, cfg.mapping, len(self.indices)):
             return False
+        st.last_mapped = k
         self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first,
                                   keyframe=first or k % cfg.mapping.keyframe_every == 0))
         st.initialized = True
