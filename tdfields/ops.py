@@ -64,13 +64,19 @@ def interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     return interpolate_reference(grid, coords)
 
 
+#: above this rank the generated compose kernel falls off a cliff (forward+backward, 1 thread, 64-128 samples a side,
+#: 16-32 channels: 0.5-1.1x of the einsum reference up to rank 16, 5-16x slower at 32 and 64;
+#: benchmarks/compose_rank.py), so composition goes to the reference there
+FUSED_COMPOSE_MAX_RANK = 16
+
+
 def compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
     """Rank-k plane from two line factors: ``u [n_a, k*C]``, ``v [n_b, k*C]`` -> ``[n_a, n_b, C]``,
     ``P[a, b, c] = sum_r u[a, r*C + c] v[b, r*C + c]`` (rank-major, channel-minor factors).
 
-    The fused kernel where :func:`tdfields.kernels.use_fused` allows it, else
-    :func:`tdfields.program.compose_plane_reference` (``torch.einsum``).
+    The fused kernel where :func:`tdfields.kernels.use_fused` allows it and ``rank`` is at most
+    :data:`FUSED_COMPOSE_MAX_RANK`, else :func:`tdfields.program.compose_plane_reference` (``torch.einsum``).
     """
-    if kernels.use_fused(u, v):
+    if rank <= FUSED_COMPOSE_MAX_RANK and kernels.use_fused(u, v):
         return kernels.fused_compose_plane(u, v, rank)
     return compose_plane_reference(u, v, rank)

@@ -202,3 +202,19 @@ def test_empty_batches():
         y = f(x)
         y.sum().backward()
     assert y.shape == (0, 4) and x.grad.shape == (0, 3)
+
+
+def test_composition_above_the_fused_rank_limit_takes_the_reference(monkeypatch):
+    """Above FUSED_COMPOSE_MAX_RANK the generated compose kernel is 5-16x slower than einsum
+    (benchmarks/compose_rank.py): dispatch goes to the reference there, and at the limit still to the kernel."""
+    from tdfields import ops
+
+    calls = []
+    real = ops.kernels.fused_compose_plane
+    monkeypatch.setattr(ops.kernels, "fused_compose_plane", lambda u, v, k: calls.append(k) or real(u, v, k))
+    for rank in (ops.FUSED_COMPOSE_MAX_RANK, ops.FUSED_COMPOSE_MAX_RANK + 1):
+        u, v = torch.randn(5, rank * 2), torch.randn(6, rank * 2)
+        with kernels.use_backend("numba"):
+            out = ops.compose_plane(u, v, rank)
+        torch.testing.assert_close(out, torch.einsum("akc,bkc->abc", u.view(5, rank, 2), v.view(6, rank, 2)))
+    assert calls == [ops.FUSED_COMPOSE_MAX_RANK]
