@@ -67,17 +67,19 @@ def load_runs(path: str | Path) -> dict[tuple, dict[int, float]]:
     for i, r in enumerate(runs):
         if not isinstance(r, dict) or "representation" not in r or "seed" not in r:
             raise SlamInputError(f"{src}: run {i} has no representation or seed")
+        # one name for a configuration in both formats: "preset (data folder)", so a sweep compares with a benchmark
+        data_name = Path(r["data"]).name if r.get("data") else None
         if "ate_rmse_cm" in r:  # slam_compare.json
             ate = r["ate_rmse_cm"]
-            data_name = Path(r["data"]).name if r.get("data") else None
-            config = f"{r.get('sequence')} ({data_name})" if data_name else str(r.get("sequence"))
+            preset = r.get("sequence")
             backend = r.get("backend", "auto")
         else:  # a sweep's summary.json: metres, and failed runs recorded beside the finished ones
             if r.get("status", "ok") != "ok" or r.get("ate_rmse_m") is None:
                 continue
             ate = 100.0 * float(r["ate_rmse_m"])
-            config = str(r.get("label") or r.get("preset"))
+            preset = r.get("preset") or r.get("label")
             backend = "auto"
+        config = f"{preset} ({data_name})" if data_name else str(preset)
         if ate is None or not math.isfinite(float(ate)):
             continue
         group = out.setdefault((config, r["representation"], backend), {})
