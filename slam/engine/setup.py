@@ -30,19 +30,20 @@ def resolve_device(name: str) -> torch.device:
 
 
 def load_data(cfg: Config):
-    """Open the dataset the config names (the bundled synthetic sequence when ``data.path`` is null)."""
+    """Open the dataset the config names (when ``data.path`` is null the bundled synthetic sequence, the room or
+    ``data.options.scene: walk``)."""
     from slam.data import detect_layout, load_dataset
     from slam.data.registry import dataset_kind
 
     path = cfg.data.path
     # the layout a folder of the named dataset is detected as (the synthetic room's is Replica's)
     kind = "auto" if cfg.data.kind == "auto" else dataset_kind(cfg.data.kind).detected_as
+    options = dict(cfg.data.options)
+    scene = options.pop("scene", "room") if cfg.data.kind == "synthetic" else "room"
     if path is None:
         if kind not in ("auto", dataset_kind("synthetic").detected_as):
             raise SlamInputError(f"preset '{cfg.name}' reads {kind} data: pass its folder with --data PATH")
-        from slam.data.synthetic import default_sequence
-
-        path = str(default_sequence())
+        path = str(_synthetic_sequence(scene, cfg.data.max_frames, cfg.data.stride))
     p = Path(path).expanduser()
     if not p.exists():
         raise SlamInputError(f"data folder not found: {p}")
@@ -51,7 +52,7 @@ def load_data(cfg: Config):
         raise SlamInputError(f"preset '{cfg.name}' expects {kind} data but {p} looks like {found} data "
                              f"(pick a {found} preset or data.kind=auto)")
     try:
-        ds = load_dataset(p, kind=found, **cfg.data.options)
+        ds = load_dataset(p, kind=found, **options)
     except SlamInputError:
         raise
     except (ValueError, FileNotFoundError, KeyError, OSError, TypeError) as exc:
@@ -59,6 +60,18 @@ def load_data(cfg: Config):
     if len(ds) == 0:
         raise SlamInputError(f"{p}: the dataset has no frames")
     return ds
+
+
+def _synthetic_sequence(scene: str, max_frames: int | None, stride: int):
+    """The bundled sequence of ``data.options.scene`` (``room``, the default, or ``walk``). Of the walk only the
+    frames the run reads are generated (its first ``max_frames * stride``; an excerpt's frames equal the walk's)."""
+    from slam.data.synthetic import SCENES, WALK_FRAMES, default_sequence, walk_sequence
+
+    if scene not in SCENES:
+        raise SlamInputError(f"config key 'data.options.scene' = {scene!r}: must be one of {', '.join(SCENES)}")
+    if scene == "walk":
+        return walk_sequence(WALK_FRAMES if max_frames is None else min(WALK_FRAMES, max_frames * stride))
+    return default_sequence()
 
 
 def check_edges(cfg: Config, height: int, width: int) -> None:

@@ -1,6 +1,10 @@
 """A procedural indoor room rendered analytically into an RGB-D sequence: the project's built-in dataset.
 
-The scene is a 4 m x 4 m x 2.5 m room (world frame: z up, floor at z = 0, walls at x, y = +-2) with a table,
+Two scenes (``SynthConfig.scene``): the room, and the walk (:mod:`~slam.data.synthetic.walk`: three connected
+rooms along 20 m, walked through and back in 2100 frames with Kinect-like depth; :func:`walk_config`,
+:func:`walk_sequence`).
+
+The room is a 4 m x 4 m x 2.5 m room (world frame: z up, floor at z = 0, walls at x, y = +-2) with a table,
 a cabinet, a shelf, a sofa, a pillar and a few spheres/cylinders. Every surface carries a colour texture that
 is a function of the 3D world point (value noise at three scales mixed between two colours per material,
 times fixed Lambertian shading from a ceiling light), so the images are multi-view consistent and rich
@@ -24,12 +28,21 @@ caching, :data:`GENERATOR_VERSION`).
 """
 
 from slam.data.synthetic.camera import camera_path
-from slam.data.synthetic.config import SynthConfig
+from slam.data.synthetic.config import SCENES, WALK_FRAMES, SynthConfig, walk_config
 from slam.data.synthetic.mesh import scene_mesh
 from slam.data.synthetic.render import render_frame
 from slam.data.synthetic.scene import EVAL_CAMERA_BOX, ROOM_MAX, ROOM_MIN, SynthScene, build_scene
-from slam.data.synthetic.sequence import DEPTH_SCALE, GENERATOR_VERSION, cache_root, default_sequence, generate
+from slam.data.synthetic.sequence import (
+    DEPTH_SCALE,
+    GENERATOR_VERSION,
+    cache_root,
+    default_sequence,
+    generate,
+    scene_and_path,
+    walk_sequence,
+)
 from slam.data.synthetic.textures import albedo
+from slam.data.synthetic.walk import EVAL_CAMERA_BOX_WALK, build_walk_scene, free_space_distance, walk_path
 
 __all__ = [
     "SynthConfig",
@@ -47,4 +60,13 @@ __all__ = [
     "EVAL_CAMERA_BOX",
     "ROOM_MIN",
     "ROOM_MAX",
+    "SCENES",
+    "WALK_FRAMES",
+    "walk_config",
+    "walk_sequence",
+    "walk_path",
+    "build_walk_scene",
+    "free_space_distance",
+    "scene_and_path",
+    "EVAL_CAMERA_BOX_WALK",
 ]

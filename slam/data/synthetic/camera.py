@@ -24,16 +24,20 @@ def camera_path(cfg: SynthConfig) -> np.ndarray:
     yaw = th + np.pi + 0.30 * np.sin(2 * th + ph[5])
     pitch = -0.32 + 0.07 * np.sin(3.7 * th + ph[6])
     roll = 0.04 * np.sin(5 * th + ph[7])
-    poses = np.tile(np.eye(4), (cfg.frames, 1, 1))
+    return look_poses(np.stack([x, y, z], 1), yaw, pitch, roll)
+
+
+def look_poses(pos: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """``[N, 4, 4]`` camera-to-world poses (OpenCV axes) at ``pos [N, 3]`` looking along ``yaw`` (radians about
+    world z, from +x), ``pitch`` (up positive) and ``roll`` about the optical axis, with world z up."""
+    poses = np.tile(np.eye(4), (len(pos), 1, 1))
     fwd = np.stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)], 1)
     right = np.cross(fwd, np.array([0.0, 0.0, 1.0]))
     right /= np.linalg.norm(right, axis=1, keepdims=True)
     down = np.cross(fwd, right)
     cr, sr = np.cos(roll)[:, None], np.sin(roll)[:, None]
-    right2 = cr * right + sr * down
-    down2 = -sr * right + cr * down
-    poses[:, :3, 0] = right2
-    poses[:, :3, 1] = down2
+    poses[:, :3, 0] = cr * right + sr * down
+    poses[:, :3, 1] = -sr * right + cr * down
     poses[:, :3, 2] = fwd
-    poses[:, :3, 3] = np.stack([x, y, z], 1)
+    poses[:, :3, 3] = pos
     return poses

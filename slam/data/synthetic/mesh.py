@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slam.data.synthetic.scene import ROOM_MAX, ROOM_MIN, SynthScene
+from slam.data.synthetic.scene import SynthScene
 from slam.data.synthetic.textures import albedo
 
 
@@ -20,9 +20,10 @@ def scene_mesh(scene: SynthScene, max_edge: float = 0.1, drop_hidden: bool = Tru
     """
     import trimesh
 
+    rmin, rmax = scene.room_min, scene.room_max
     parts = []
-    room = trimesh.creation.box(extents=ROOM_MAX - ROOM_MIN)
-    room.apply_translation((ROOM_MAX + ROOM_MIN) / 2)
+    room = trimesh.creation.box(extents=rmax - rmin)
+    room.apply_translation((rmax + rmin) / 2)
     room.invert()  # normals point into the room, the side the camera sees
     parts.append(room)
     for bmin, bmax, _ in scene.boxes:
@@ -44,7 +45,7 @@ def scene_mesh(scene: SynthScene, max_edge: float = 0.1, drop_hidden: bool = Tru
             centroids = v[f].mean(axis=1)
             hidden = _inside_solids(scene, centroids, skip=k - 1)
             if k > 0:
-                hidden |= np.any((centroids < ROOM_MIN + 1e-3) | (centroids > ROOM_MAX - 1e-3), axis=1)
+                hidden |= np.any((centroids < rmin + 1e-3) | (centroids > rmax - 1e-3), axis=1)
             f = f[~hidden]
         part = trimesh.Trimesh(v, f, process=False)
         part.remove_unreferenced_vertices()
@@ -81,8 +82,9 @@ def _vertex_materials(scene: SynthScene, v: np.ndarray) -> np.ndarray:
     best = np.full(len(v), np.inf)
     mat = np.zeros(len(v), np.int64)
     # room faces
-    dists = np.stack([v[:, 0] - ROOM_MIN[0], ROOM_MAX[0] - v[:, 0], v[:, 1] - ROOM_MIN[1], ROOM_MAX[1] - v[:, 1],
-                      v[:, 2] - ROOM_MIN[2], ROOM_MAX[2] - v[:, 2]], 1)
+    lo, hi = scene.room_min, scene.room_max
+    dists = np.stack([v[:, 0] - lo[0], hi[0] - v[:, 0], v[:, 1] - lo[1], hi[1] - v[:, 1], v[:, 2] - lo[2],
+                      hi[2] - v[:, 2]], 1)
     best = np.abs(dists).min(1)
     mat = np.abs(dists).argmin(1)
     for bmin, bmax, mid in scene.boxes:

@@ -8,7 +8,7 @@ with unit camera z, so the hit parameter ``t`` is the z-depth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,7 +25,8 @@ class SynthScene:
 
     boxes: list of (min [3], max [3], material); spheres: (centre [3], radius, material);
     cylinders: vertical, (centre_xy [2], radius, z0, z1, material). Materials 0..5 are the room faces
-    (-x, +x, -y, +y, floor, ceiling).
+    (-x, +x, -y, +y, floor, ceiling). ``room_min`` / ``room_max`` bound the enclosing box seen from inside (the
+    room's by default; the walk's building is larger).
     """
 
     boxes: list
@@ -36,6 +37,8 @@ class SynthScene:
     scales: np.ndarray  # [M] texture frequency multiplier
     lattice: np.ndarray  # [6, G, G, G] value-noise tables
     light: np.ndarray  # [3] point light position
+    room_min: np.ndarray = field(default_factory=lambda: ROOM_MIN.copy())
+    room_max: np.ndarray = field(default_factory=lambda: ROOM_MAX.copy())
 
 
 def build_scene(seed: int = 0) -> SynthScene:
@@ -64,7 +67,13 @@ def build_scene(seed: int = 0) -> SynthScene:
         (np.array([0.3, 0.15]), 0.06, 0.76, 1.0, 15),  # vase on the table
         (np.array([0.3, -1.85]), 0.08, 0.75, 1.15, 15),  # lamp base on the sideboard
     ]
-    m = 18
+    colors_a, colors_b, scales, lattice = material_tables(rng, 18)
+    return SynthScene(b, spheres, cylinders, colors_a, colors_b, scales, lattice, np.array([0.3, -0.2, 2.3]))
+
+
+def material_tables(rng: np.random.Generator, m: int):
+    """Colours, texture scales and noise tables of ``m`` materials (the first 6 the room faces, paler):
+    ``(colors_a [m, 3], colors_b [m, 3], scales [m], lattice [6, 32, 32, 32])``."""
     # pleasant but distinct hues: sample in HSV-like space, walls paler, furniture more saturated
     hue = rng.uniform(0, 1, m)
     sat = np.where(np.arange(m) < 6, rng.uniform(0.15, 0.35, m), rng.uniform(0.35, 0.75, m))
@@ -73,7 +82,7 @@ def build_scene(seed: int = 0) -> SynthScene:
     colors_b = _hsv_to_rgb((hue + rng.uniform(0.1, 0.4, m)) % 1.0, np.clip(sat + 0.2, 0, 1), val * 0.45)
     scales = rng.uniform(0.8, 1.6, m)
     lattice = rng.uniform(0.0, 1.0, (6, 32, 32, 32)).astype(np.float32)
-    return SynthScene(b, spheres, cylinders, colors_a, colors_b, scales, lattice, np.array([0.3, -0.2, 2.3]))
+    return colors_a, colors_b, scales, lattice
 
 
 def _hsv_to_rgb(h, s, v):
@@ -103,23 +112,24 @@ def cast_rays(scene: SynthScene, o: np.ndarray, d: np.ndarray):
     dd = (d * d).sum(1)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d
-        hits = _room_hits(o, d, inv)
+        hits = _room_hits(o, d, inv, scene.room_min, scene.room_max)
         for bmin, bmax, mid in scene.boxes:
             _hit_box(hits, o, d, dd, inv, bmin, bmax, mid)
         for c, r, mid in scene.spheres:
             _hit_sphere(hits, o, d, dd, c, r, mid)
-        for cxy, r, z0, z1, mid in scene.cylinders:
-            _hit_cylinder(hits, o, d, dd, inv, cxy, r, z0, z1, mid)
+        for cyl in scene.cylinders:
+            _hit_cylinder(hits, o, d, dd, inv, cyl, (scene.room_min[2], scene.room_max[2]))
     return hits
 
 
 # the hit_* helpers update the nearest hits so far, ``(t [P], normal [P, 3], material [P])``, in place where a
 # primitive is hit in front of them; they run inside cast_rays' errstate (rays parallel to a face divide by 0)
-def _room_hits(o: np.ndarray, d: np.ndarray, inv: np.ndarray):
-    """The room, seen from inside: every ray's exit face, ``(t [P], normal [P, 3], material [P])``."""
+def _room_hits(o: np.ndarray, d: np.ndarray, inv: np.ndarray, rmin: np.ndarray, rmax: np.ndarray):
+    """The room (box ``rmin``..``rmax``), seen from inside: every ray's exit face, ``(t [P], normal [P, 3],
+    material [P])``."""
     p = len(d)
     ar = np.arange(p)
-    tfar = np.maximum((ROOM_MIN - o) * inv, (ROOM_MAX - o) * inv)
+    tfar = np.maximum((rmin - o) * inv, (rmax - o) * inv)
     axis = np.argmin(tfar, axis=1)
     t_best = tfar[ar, axis]
     sign = np.sign(d[ar, axis])
@@ -171,9 +181,11 @@ def _hit_sphere(hits, o, d, dd, c, r, mid) -> None:
         mat[k] = mid
 
 
-def _hit_cylinder(hits, o, d, dd, inv, cxy, r, z0, z1, mid) -> None:
-    """A vertical cylinder: its side, then its caps (those not hidden in the floor or ceiling)."""
+def _hit_cylinder(hits, o, d, dd, inv, cyl, floor_ceiling) -> None:
+    """A vertical cylinder ``(centre_xy, radius, z0, z1, material)``: its side, then its caps (those not hidden in
+    the floor or ceiling, at the heights ``floor_ceiling``)."""
     t_best, normal, mat = hits
+    cxy, r, z0, z1, mid = cyl
     centre = np.array([cxy[0], cxy[1], (z0 + z1) / 2])
     idx = _candidates(o, d, dd, centre, float(np.hypot(r, (z1 - z0) / 2)) + 1e-6)
     if not len(idx):
@@ -197,7 +209,7 @@ def _hit_cylinder(hits, o, d, dd, inv, cxy, r, z0, z1, mid) -> None:
         normal[k] = n
         mat[k] = mid
     for zc, nz in ((z1, 1.0), (z0, -1.0)):
-        if zc <= ROOM_MIN[2] + 1e-9 or zc >= ROOM_MAX[2] - 1e-9:
+        if zc <= floor_ceiling[0] + 1e-9 or zc >= floor_ceiling[1] - 1e-9:
             continue  # cap hidden in floor/ceiling
         t = (zc - o[2]) * ii[:, 2]
         hx = o[0] + t * di[:, 0] - cxy[0]

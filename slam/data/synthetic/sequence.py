@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from slam.data.synthetic.camera import camera_path
-from slam.data.synthetic.config import SynthConfig
+from slam.data.synthetic.config import WALK_FRAMES, SynthConfig, walk_config
 from slam.data.synthetic.mesh import scene_mesh
 from slam.data.synthetic.render import render_frame, sensor_depth
 from slam.data.synthetic.scene import build_scene
+from slam.data.synthetic.walk import build_walk_scene, walk_path
 from slam.errors import SlamInputError
 
 log = logging.getLogger("slam.data.synthetic")
@@ -29,7 +30,22 @@ DEPTH_SCALE = 6553.5
 
 
 def _config_record(cfg: SynthConfig) -> dict:
-    return {"generator_version": GENERATOR_VERSION, "config": dataclasses.asdict(cfg)}
+    return {"generator_version": GENERATOR_VERSION, "config": _config_dict(cfg)}
+
+
+def _config_dict(cfg: SynthConfig) -> dict:
+    # the room's record as before the walk existed, so caches of the room stay valid
+    d = dataclasses.asdict(cfg)
+    if d["scene"] == "room":
+        del d["scene"]
+    return d
+
+
+def scene_and_path(cfg: SynthConfig):
+    """The config's scene (:class:`SynthScene`) and its ``[frames, 4, 4]`` camera-to-world poses."""
+    if cfg.scene == "walk":
+        return build_walk_scene(cfg.seed), walk_path(cfg)
+    return build_scene(cfg.seed), camera_path(cfg)
 
 
 def generate(out_dir, cfg: SynthConfig | None = None, *, overwrite: bool = True) -> Path:
@@ -53,9 +69,8 @@ def generate(out_dir, cfg: SynthConfig | None = None, *, overwrite: bool = True)
         shutil.rmtree(out / "results", ignore_errors=True)
     t0 = time.perf_counter()
     (out / "results").mkdir(parents=True, exist_ok=True)
-    scene = build_scene(cfg.seed)
+    scene, poses = scene_and_path(cfg)
     intr = cfg.intrinsics()
-    poses = camera_path(cfg)
     for i, pose in enumerate(poses):
         color, depth, cos, _ = render_frame(scene, pose, intr, cfg.supersample)
         rng = np.random.default_rng([cfg.seed, 2, i])
@@ -67,14 +82,17 @@ def generate(out_dir, cfg: SynthConfig | None = None, *, overwrite: bool = True)
         if cfg.color_noise_sigma > 0:
             color = color + rng.normal(0.0, cfg.color_noise_sigma, color.shape)
         col8 = np.round(np.clip(color, 0, 1) * 255).astype(np.uint8)
-        d16 = np.round(np.clip(depth, 0, 65535 / DEPTH_SCALE) * DEPTH_SCALE).astype(np.uint16)
+        # past the PNG's 10 m range (the walk without the sensor model) there is no reading
+        depth = np.where(depth < 65535 / DEPTH_SCALE, np.maximum(depth, 0), 0)
+        d16 = np.round(depth * DEPTH_SCALE).astype(np.uint16)
         # low zlib effort: 3x faster writes for ~10 % larger files
         iio.imwrite(out / "results" / f"frame{i:06d}.png", col8, compress_level=1)
         iio.imwrite(out / "results" / f"depth{i:06d}.png", d16, compress_level=1)
     np.savetxt(out / "traj.txt", poses.reshape(len(poses), 16), fmt="%.10f")
     mesh = scene_mesh(scene)
     mesh.export(out / "mesh.ply")
-    cam = {**intr.as_dict(), "depth_scale": DEPTH_SCALE, "name": f"synthetic_seed{cfg.seed}",
+    name = "synthetic_walk" if cfg.scene == "walk" else "synthetic"
+    cam = {**intr.as_dict(), "depth_scale": DEPTH_SCALE, "name": f"{name}_seed{cfg.seed}",
            "axes": "OpenCV (x right, y down, z forward); traj.txt is camera-to-world"}
     (out / "cam.json").write_text(json.dumps(cam, indent=2) + "\n")
     (out / "synth.json").write_text(json.dumps(_config_record(cfg), indent=2) + "\n")
@@ -130,6 +148,12 @@ def default_sequence(cache_dir=None, cfg: SynthConfig | None = None) -> Path:
     return target
 
 
+def walk_sequence(frames: int | None = None, cache_dir=None) -> Path:
+    """Folder of the walk's first ``frames`` frames (default: the whole walk, :data:`WALK_FRAMES`), generated on
+    first use into the cache like :func:`default_sequence` (an excerpt's frames equal the whole walk's)."""
+    return default_sequence(cache_dir, walk_config(WALK_FRAMES if frames is None else frames))
+
+
 def _holds(folder: Path, record: dict) -> bool:
     try:
         return json.loads((folder / "synth.json").read_text()) == record and (folder / "mesh.ply").exists()
@@ -140,5 +164,6 @@ def _holds(folder: Path, record: dict) -> bool:
 def _config_tag(cfg: SynthConfig) -> str:
     import hashlib
 
-    blob = json.dumps(dataclasses.asdict(cfg), sort_keys=True).encode()
-    return f"{cfg.seed}_{cfg.frames}_{cfg.height}x{cfg.width}_" + hashlib.sha1(blob).hexdigest()[:8]
+    blob = json.dumps(_config_dict(cfg), sort_keys=True).encode()
+    prefix = "" if cfg.scene == "room" else cfg.scene + "_"
+    return f"{prefix}{cfg.seed}_{cfg.frames}_{cfg.height}x{cfg.width}_" + hashlib.sha1(blob).hexdigest()[:8]
