@@ -66,16 +66,14 @@ def test_sample_pdf_concentrates_on_heavy_bin():
     assert inside > 0.9
 
 
+def _plane(T: float, grey: float):
+    """A plane z = 2 in front of a camera at the origin (sdf = (2 - z) / T, clipped) of one grey."""
+    return (lambda p: torch.clamp((2.0 - p[:, 2]) / T, -1, 1)), (lambda p: torch.full((p.shape[0], 3), grey))
+
+
 def test_render_rays_plane_depth():
-    # a plane z = 2 in front of a camera at the origin: sdf = (2 - z) / T clipped
     T = 0.06
-
-    def sdf(p):
-        return torch.clamp((2.0 - p[:, 2]) / T, -1, 1)
-
-    def rgb(p):
-        return torch.full((p.shape[0], 3), 0.5)
-
+    sdf, rgb = _plane(T, 0.5)
     o = torch.zeros(16, 3)
     d = torch.cat((torch.zeros(16, 2), torch.ones(16, 1)), -1)
     D = torch.full((16,), 2.0)
@@ -88,13 +86,7 @@ def test_render_rays_plane_depth():
 def test_render_rays_without_depth_uses_box():
     T = 0.06
     aabb = torch.tensor([[-1.0, 1.0], [-1.0, 1.0], [-1.0, 3.0]])
-
-    def sdf(p):
-        return torch.clamp((2.0 - p[:, 2]) / T, -1, 1)
-
-    def rgb(p):
-        return torch.full((p.shape[0], 3), 0.2)
-
+    sdf, rgb = _plane(T, 0.2)
     o = torch.zeros(4, 3)
     d = torch.cat((torch.zeros(4, 2), torch.ones(4, 1)), -1)
     D = torch.tensor([2.0, 0.0, 2.0, 0.0])
