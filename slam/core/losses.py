@@ -45,6 +45,15 @@ def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (values * mask).sum() / mask.sum().clamp(min=1)
 
 
+def sdf_regions(z: torch.Tensor, depth: torch.Tensor, truncation: float):
+    """``(front, center, tail)`` ``[R, N]`` bool masks of the samples ``z`` ``[R, N]`` on rays of measured depth
+    ``depth`` ``[R]`` (metres): free space ``z < D - T``, the centre ``|z - D| < 0.4 T``, the rest of the band
+    ``|z - D| <= T``."""
+    D = depth[:, None]
+    center = (z - D).abs() < 0.4 * truncation
+    return z < D - truncation, center, ((z - D).abs() <= truncation) & ~center
+
+
 def sdf_losses(sdf: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, truncation: float) -> dict[str, torch.Tensor]:
     """The three SDF terms.
 
@@ -58,10 +67,7 @@ def sdf_losses(sdf: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, truncati
         ``{"fs", "center", "tail"}`` scalar tensors (0 when a region is empty).
     """
     D = depth[:, None]
-    front = z < D - truncation
-    center = (z - D).abs() < 0.4 * truncation
-    band = (z - D).abs() <= truncation
-    tail = band & ~center
+    front, center, tail = sdf_regions(z, depth, truncation)
     sdf_err = (z + sdf * truncation - D) ** 2
     return {
         "fs": _masked_mean((sdf - 1.0) ** 2, front),

@@ -26,7 +26,7 @@ import torch
 
 import tdfields
 from slam.core.camera import pixel_directions, sample_pixels
-from slam.core.losses import total_loss, tracking_inliers
+from slam.core.losses import sdf_regions, total_loss, tracking_inliers
 from slam.core.pose import exp_se3, matrix_to_pose, normalize_pose, pose_to_matrix
 from slam.core.rendering import composite_weights, ray_box_exit, sample_depth_rays, sdf_to_alpha
 from slam.engine.state import TrackResult
@@ -82,9 +82,7 @@ def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg):
     d_ds = torch.autograd.grad(depth, s_l, torch.ones_like(depth), retain_graph=True)[0]  # [R, N]
     rows, resid, weights = [], [], []
     Dm = rays.D[:, None]
-    front = rays.z < Dm - T
-    center = (rays.z - Dm).abs() < 0.4 * T
-    tail = ((rays.z - Dm).abs() <= T) & ~center
+    front, center, tail = sdf_regions(rays.z, rays.D, T)
     sd = s.detach()
     for mask, r, g, lam in ((front, sd - 1.0, gs, wt.fs), (center, rays.z + sd * T - Dm, T * gs, wt.center),
                             (tail, rays.z + sd * T - Dm, T * gs, wt.tail)):
