@@ -167,6 +167,10 @@ class MappingConfig:
     # ours: keyframe images as loaded (float32) or 8-bit colour + float16 depth (compact, 3.2x less memory)
     keyframe_storage: str = choice("float32", KEYFRAME_STORAGES)
     max_keyframes: int = num(0, **NONNEG)  # ours: 0 keeps all; else the most redundant one goes (bounded memory)
+    # ours: the newest N keyframes' images stay in memory, older ones go to a temporary file in keyframe_spill_dir
+    # ("": the system's) and are read back bit-identical when selected (slam.engine.keyframe_spill); 0: all in memory
+    keyframes_in_memory: int = num(100, **NONNEG)
+    keyframe_spill_dir: str = ""
     weights: LossWeights = field(default_factory=MAPPING_WEIGHTS)
     # ours (slam/engine/schedule.py): every_frame is ESLAM's fixed schedule; by_need maps the first need_young frames,
     # then a frame when need_max_gap frames passed since the last mapped one or its tracking loss is over
@@ -208,6 +212,7 @@ class Config:
     device: str = "cpu"
     threads: int = num(0, lo=0, hi=1024)  # 0 = leave torch's default
     keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.engine.runtime)
+    trim_memory_every: int = num(20, **NONNEG)  # frames between returns of the heap's free pages; 0: never
     parallel: bool = False  # mapping on a worker thread beside the tracker (slam.engine.map_worker)
     checkpoint_every: int = num(0, **NONNEG)  # frames between checkpoints (0: by time, checkpoint_interval_s)
     checkpoint_interval_s: float = num(60.0, **POSITIVE)  # at most this much work is lost (checkpoint_every: 0)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import os
 import re
 from typing import Any, Union, get_args, get_origin, get_type_hints
 
@@ -175,5 +176,9 @@ def _validate(cfg: Config) -> None:
         # have to drop one of those
         raise SlamInputError(f"config key 'mapping.max_keyframes' = {cfg.mapping.max_keyframes} is out of range: "
                              "must be 0 (keep every keyframe) or >= 3 (the first and the last two are always kept)")
+    spill = cfg.mapping.keyframe_spill_dir
+    if spill and not os.path.isdir(os.path.expanduser(spill)):
+        raise SlamInputError(f"config key 'mapping.keyframe_spill_dir' = {spill!r} is not a directory "
+                             "(\"\" uses the system's temporary directory)")
     if len(cfg.tracking.ignore_edge) != 2:
         raise SlamInputError(f"config key 'tracking.ignore_edge' must be [rows, columns], got {cfg.tracking.ignore_edge!r}")

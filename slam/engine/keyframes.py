@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -9,30 +10,47 @@ import torch
 
 from slam.core.camera import pixel_directions
 from slam.core.pose import pose_to_matrix, rotation_angle
+from slam.engine.keyframe_spill import SpillFile, SpilledImages
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
 class Keyframe:
     """One stored keyframe: ``color [H, W, 3]`` and ``depth [H, W]`` (metres) as stored, its estimated pose as
     ``[7]`` (q, t) camera-to-world (refined by BA). Read the images with :meth:`rgb` / :meth:`metres`, which
-    return float32 whatever the storage."""
+    return float32 whatever the storage, and wherever the images are: in memory, or (``color`` and ``depth``
+    None) in the store's spill file at ``spilled``."""
 
     index: int
-    color: torch.Tensor
-    depth: torch.Tensor
+    color: torch.Tensor | None
+    depth: torch.Tensor | None
     pose: torch.Tensor
+    spilled: SpilledImages | None = None
+
+    def images(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(color, depth)`` as stored (read back from disk when spilled)."""
+        color, depth = self.color, self.depth  # one read of each: the mapping thread may spill it meanwhile
+        if color is None or depth is None:
+            return self.spilled.read()
+        return color, depth
 
     def rgb(self) -> torch.Tensor:
         """``[H, W, 3]`` float32 RGB in [0, 1]."""
-        return self.color.float() / 255.0 if self.color.dtype == torch.uint8 else self.color.float()
+        color = self.images()[0]
+        return color.float() / 255.0 if color.dtype == torch.uint8 else color.float()
 
     def metres(self) -> torch.Tensor:
         """``[H, W]`` float32 depth in metres."""
-        return self.depth.float()
+        return self.images()[1].float()
 
     @property
     def nbytes(self) -> int:
-        return self.color.numel() * self.color.element_size() + self.depth.numel() * self.depth.element_size()
+        """Bytes of images held in memory (0 once spilled)."""
+        color, depth = self.color, self.depth
+        if color is None or depth is None:
+            return 0
+        return color.numel() * color.element_size() + depth.numel() * depth.element_size()
 
 
 def bytes_per_keyframe(height: int, width: int, storage: str = "float32") -> int:
@@ -51,12 +69,27 @@ class KeyframeStore:
         max_keyframes: 0 keeps every keyframe; otherwise, past this count, the most redundant one is dropped (the
             keyframe, other than the first and the last two, whose pose is closest to its predecessor's:
             translation in metres plus 0.5 m per radian of rotation), so memory stays bounded on long sequences.
+        in_memory: 0 keeps every keyframe's images in memory; otherwise only the newest ``in_memory`` keyframes'
+            images stay, older ones move to a temporary file in ``spill_dir`` (``""``: the system's temporary
+            directory) and are read back, bit-identical, when selected. Where the file cannot be written (a full
+            disk), the images stay in memory, the reason is logged and kept in ``spill_error``, and the run goes on.
     """
 
     frames: list[Keyframe] = field(default_factory=list)
     storage: str = "float32"
     max_keyframes: int = 0
     dropped: int = 0
+    in_memory: int = 0
+    spill_dir: str = ""
+    spill_error: str = ""
+    spill: SpillFile | None = field(default=None, repr=False)
+
+    @classmethod
+    def for_mapping(cls, mapping) -> "KeyframeStore":
+        """An empty store as a :class:`slam.config.MappingConfig` sets it up (``keyframe_storage``,
+        ``max_keyframes``, ``keyframes_in_memory``, ``keyframe_spill_dir``)."""
+        return cls(storage=mapping.keyframe_storage, max_keyframes=mapping.max_keyframes,
+                   in_memory=mapping.keyframes_in_memory, spill_dir=mapping.keyframe_spill_dir)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -67,8 +100,37 @@ class KeyframeStore:
                           kf.metres().to(torch.float16), kf.pose)
         self.frames.append(kf)
         if self.max_keyframes and len(self.frames) > self.max_keyframes:
-            self.frames.pop(self._most_redundant())
+            gone = self.frames.pop(self._most_redundant())
+            if gone.spilled is not None:
+                gone.spilled.file.free(gone.spilled)
             self.dropped += 1
+        if self.in_memory and not self.spill_error:
+            resident = [f for f in self.frames if f.color is not None]
+            for old in resident[: max(len(resident) - self.in_memory, 0)]:
+                if not self._spill(old):
+                    break
+
+    def _spill(self, kf: Keyframe) -> bool:
+        try:
+            if self.spill is None:
+                self.spill = SpillFile(self.spill_dir)
+            kf.spilled = self.spill.write(kf.color, kf.depth)
+        except OSError as exc:
+            self.spill_error = f"keyframe images stay in memory: cannot write to {self.spill_dir or 'the temp dir'}: {exc}"
+            log.warning("%s (mapping.keyframe_spill_dir / mapping.keyframes_in_memory)", self.spill_error)
+            return False
+        kf.color = kf.depth = None  # after ``spilled`` is set: a reader on another thread sees one or the other
+        return True
+
+    @property
+    def spilled_bytes(self) -> int:
+        """Bytes of keyframe images on disk."""
+        return 0 if self.spill is None else self.spill.nbytes
+
+    def close(self) -> None:
+        """Delete the spill file (the spilled keyframes become unreadable)."""
+        if self.spill is not None:
+            self.spill.close()
 
     def state_dict(self) -> dict:
         """``{"keyframes": [{"k", "pose"}], "keyframes_dropped"}``: positions and poses of the keyframes kept and
@@ -80,6 +142,8 @@ class KeyframeStore:
         """Replace the keyframes with a :meth:`state_dict`'s; ``read(k)`` gives frame position ``k``'s colour
         ``[H, W, 3]`` and depth ``[H, W]`` as the loop loaded them."""
         self.frames.clear()
+        self.close()
+        self.spill = None
         self.dropped = int(state.get("keyframes_dropped", 0))
         cap, self.max_keyframes = self.max_keyframes, 0  # the stored keyframes are the ones kept: no dropping
         try:
@@ -103,7 +167,7 @@ class KeyframeStore:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the stored images."""
+        """Bytes of the stored images held in memory (see :attr:`spilled_bytes` for those on disk)."""
         return sum(kf.nbytes for kf in self.frames)
 
     def poses(self) -> torch.Tensor:

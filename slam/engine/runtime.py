@@ -1,5 +1,5 @@
-"""Process-wide runtime settings a SLAM run applies once (CPU threads, the C allocator's treatment of big
-tensors) and what it records of the machine (:func:`cpu_name`). All are global to the process, so they live here
+"""Process-wide runtime settings a SLAM run applies (CPU threads, the C allocator's treatment of big tensors and
+the return of its free pages) and what it records of the machine (:func:`cpu_name`). All are global to the process, so they live here
 and not in the scene or the fields.
 """
 
@@ -56,6 +56,29 @@ def keep_freed_memory() -> bool:
         return False
     _state["heap_kept"] = ok
     return ok
+
+
+def release_freed_memory() -> bool:
+    """Hand the C heap's free pages back to the operating system (glibc's ``malloc_trim(0)``; Linux/glibc only).
+
+    Freed memory that glibc keeps is reused, but not all of it can be: the mapping thread's arena fragments as
+    keyframes, window images and an iteration's temporaries of varying sizes come and go, and its resident size
+    crept up by 0.7-3.6 MiB a frame at ``tum/fr1_rpy-cpu`` although the run's live tensors stayed flat
+    (``benchmarks/memory_rss.py``; docs/benchmarks.md, "Memory over a long run"). Trimming every few frames
+    bounds it; the pages a later call needs again fault back in (about 17 ms per 41 MB, once per trim).
+
+    Returns:
+        True when the trim ran, False where it does not apply (not glibc).
+    """
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.malloc_trim(0)
+    except (OSError, AttributeError) as exc:
+        log.debug("release_freed_memory: %s", exc)
+        return False
+    return True
 
 
 def cpu_name() -> str:

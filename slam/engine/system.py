@@ -32,7 +32,7 @@ from slam.engine.map_worker import MapJob, MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
 from slam.engine.rng import rng_state, set_rng_state
-from slam.engine.runtime import keep_freed_memory, set_threads
+from slam.engine.runtime import keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import mapping_due
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, live_ate
@@ -83,7 +83,7 @@ class SLAM:
         self.aabb = scene_aabb(self.bound, cfg.scene.bound_dividable)
         self.scene = SceneModel(cfg, self.aabb).to(self.device)
         self.size = scene_size(self.scene)  # (parameters, field bytes), after each growth too
-        self.keyframes = KeyframeStore(storage=cfg.mapping.keyframe_storage, max_keyframes=cfg.mapping.max_keyframes)
+        self.keyframes = KeyframeStore.for_mapping(cfg.mapping)
         self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
                                   ahead=cfg.data.prefetch)
         self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel)
@@ -220,6 +220,8 @@ class SLAM:
             for k in bar:
                 t0 = time.perf_counter()
                 rec = self.step(k)
+                if self.cfg.trim_memory_every and (k + 1) % self.cfg.trim_memory_every == 0:
+                    release_freed_memory()  # bounds the heap's fragmentation on long runs (slam.engine.runtime)
                 rec.dt = time.perf_counter() - t0
                 self.state.frame_times.append(rec.dt)
                 rec.ate_m = live_ate(self.state.est, self.gt)

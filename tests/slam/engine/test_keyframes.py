@@ -1,3 +1,4 @@
+import pytest
 import torch
 
 from slam.engine.keyframes import overlapping_keyframes, select_window
@@ -62,3 +63,59 @@ def test_max_keyframes_drops_the_most_redundant_pose():
     for i, x in enumerate(xs):
         store.add(Keyframe(i, torch.zeros(2, 2, 3), torch.ones(2, 2), torch.tensor([1.0, 0, 0, 0, x, 0, 0])))
     assert [kf.index for kf in store.frames] == [0, 1, 3, 4] and store.dropped == 1
+
+
+@pytest.mark.parametrize("storage", ["float32", "compact"])
+def test_spilled_keyframes_read_back_bit_identical(tmp_path, storage):
+    import torch
+
+    from slam.engine.keyframes import Keyframe, KeyframeStore, bytes_per_keyframe
+
+    g = torch.Generator().manual_seed(0)
+    H, W = 7, 9  # odd pixel count: a float16 depth after 8-bit colour would be misaligned in one buffer
+    images = [(torch.rand(H, W, 3, generator=g), torch.rand(H, W, generator=g) * 4.0) for _ in range(5)]
+    ref, store = KeyframeStore(storage=storage), KeyframeStore(storage=storage, in_memory=2, spill_dir=str(tmp_path))
+    for i, (c, d) in enumerate(images):
+        for s in (ref, store):
+            s.add(Keyframe(i, c.clone(), d.clone(), torch.tensor([1.0, 0, 0, 0, i, 0, 0])))
+    per = bytes_per_keyframe(H, W, storage)
+    assert [kf.color is None for kf in store.frames] == [True, True, True, False, False]
+    assert store.nbytes == 2 * per and store.spilled_bytes == 3 * per and ref.nbytes == 5 * per
+    for a, b in zip(ref.frames, store.frames):
+        assert torch.equal(a.rgb(), b.rgb()) and torch.equal(a.metres(), b.metres())
+        assert [t.dtype for t in a.images()] == [t.dtype for t in b.images()]
+
+
+def test_a_dropped_spilled_keyframe_gives_its_slot_back():
+    import torch
+
+    from slam.engine.keyframes import Keyframe, KeyframeStore
+
+    store = KeyframeStore(max_keyframes=4, in_memory=1)
+    xs = [0.0, 0.5, 0.52, 1.0, 1.5, 2.0]  # keyframes 2, then 1 (ties go to the first) are dropped while spilled
+    for i, x in enumerate(xs):
+        store.add(Keyframe(i, torch.full((2, 2, 3), float(i)), torch.full((2, 2), float(i)),
+                           torch.tensor([1.0, 0, 0, 0, x, 0, 0])))
+    assert [kf.index for kf in store.frames] == [0, 3, 4, 5] and store.dropped == 2
+    assert store.spill.in_use == 3 and store.spilled_bytes == 3 * 2 * 2 * 16
+    assert [float(kf.metres()[0, 0]) for kf in store.frames] == [0.0, 3.0, 4.0, 5.0]
+
+
+def test_a_spill_that_cannot_be_written_keeps_the_images_in_memory(monkeypatch, caplog):
+    import errno
+
+    import torch
+
+    from slam.engine import keyframe_spill
+    from slam.engine.keyframes import Keyframe, KeyframeStore
+
+    def full(self, color, depth):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(keyframe_spill.SpillFile, "write", full)
+    store = KeyframeStore(in_memory=1)
+    for i in range(3):
+        store.add(Keyframe(i, torch.full((2, 2, 3), float(i)), torch.ones(2, 2), torch.tensor([1.0, 0, 0, 0, 0, 0, 0])))
+    assert all(kf.color is not None for kf in store.frames) and store.nbytes == 3 * 2 * 2 * 16
+    assert "No space left on device" in store.spill_error and "keyframe_spill_dir" in caplog.text
+    assert float(store.frames[0].rgb()[0, 0, 0]) == 0.0

@@ -26,3 +26,17 @@ def test_set_threads_zero_keeps_the_default():
         assert torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
+
+
+
+def test_release_freed_memory_runs_on_glibc_only_and_leaves_live_tensors_intact(monkeypatch):
+    # what it saves is measured by benchmarks/memory_rss.py (settings after vs no_trim), not here: whether glibc
+    # keeps a freed block depends on where the heap could grow in this process
+    live = [torch.full((1000,), float(i)) for i in range(100)]
+    gone = [torch.ones(1_000_000) for _ in range(20)]
+    del gone
+    on_glibc = platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
+    assert runtime.release_freed_memory() is on_glibc
+    assert all(float(t.sum()) == 1000.0 * i for i, t in enumerate(live))
+    monkeypatch.setattr(platform, "system", lambda: "Darwin")
+    assert runtime.release_freed_memory() is False

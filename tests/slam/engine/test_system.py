@@ -83,12 +83,20 @@ def test_tracker_returns_init_on_nan_loss(tiny_seq):
     assert not res.ok and torch.equal(res.pose, init)
 
 
-def test_deterministic_for_a_seed(tiny_seq):
-    a = _system(tiny_seq, ["data.max_frames=4"])
+@pytest.mark.parametrize("parallel", ["false", "true"])
+def test_deterministic_for_a_seed_wherever_the_keyframes_live(tiny_seq, parallel):
+    # b keeps one keyframe's images in memory and spills the rest: every mapping window reads spilled keyframes
+    # back, on the mapping thread in parallel mode; the trajectory and the map must be bit-identical
+    sched = ["data.max_frames=7", "mapping.every_frame=1", "mapping.keyframe_every=1", f"parallel={parallel}"]
+    a = _system(tiny_seq, [*sched, "mapping.keyframes_in_memory=0"])
     a.run(progress=False)
-    b = _system(tiny_seq, ["data.max_frames=4"])
+    b = _system(tiny_seq, [*sched, "mapping.keyframes_in_memory=1"])
     b.run(progress=False)
+    assert a.keyframes.spilled_bytes == 0 and b.keyframes.spilled_bytes == (len(b.keyframes) - 1) * 60 * 80 * 16
+    assert b.keyframes.nbytes == 60 * 80 * 16
     assert torch.equal(torch.stack(a.state.est), torch.stack(b.state.est))
+    for name, t in a.scene.state_dict().items():
+        assert torch.equal(b.scene.state_dict()[name], t), name
 
 
 @pytest.mark.parametrize("representation", ["lrslam", "eslam"])
