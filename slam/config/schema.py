@@ -141,6 +141,8 @@ class TrackingConfig:
     gn_damping: float = num(1e-3, lo=0, hi=1e6)
     gn_step_m: float = num(1e-4, lo=0, hi=1.0)
     gn_step_deg: float = num(0.01, lo=0, hi=90.0)
+    # ours: later rounds draw fresh pixels and redo the outlier rule at the pose the previous round reached
+    gn_rounds: int = num(1, lo=1, hi=100)
 
 
 @dataclass

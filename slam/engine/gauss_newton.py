@@ -142,39 +142,56 @@ def _evaluate(scene, T, rays, cfg, jacobian: bool):
 def track_frame_gn(scene, color: torch.Tensor, depth: torch.Tensor, intrinsics, init_pose: torch.Tensor, cfg,
                    generator: torch.Generator, iters: int | None = None) -> TrackResult:
     """Estimate the camera-to-world pose of one frame by Levenberg-Marquardt (same arguments and result as
-    :func:`slam.engine.tracker.track_frame`; ``iters`` counts loss evaluations, at most ``tracking.gn_iters``)."""
+    :func:`slam.engine.tracker.track_frame`; ``iters`` counts loss evaluations per round, at most
+    ``tracking.gn_iters``). With ``tracking.gn_rounds`` > 1 each later round draws fresh pixels and applies the
+    outlier rule again at the pose the previous round reached, and solves from there."""
     tc = cfg.tracking
     iters = tc.gn_iters if iters is None else iters
     T = pose_to_matrix(init_pose.to(depth.device).float()).detach()
+    done, last, total = None, None, 0
     with tdfields.frozen(scene):
-        rays = _draw_rays(scene, color, depth, intrinsics, T, cfg, generator)
-        if rays is None:
-            return TrackResult(init_pose.clone(), float("nan"), False, "too few rays with valid depth inside the "
-                               "scene box")
-        _, rendered, _ = _evaluate(scene, T, rays, cfg, jacobian=False)
-        inl = tracking_inliers(rendered, rays.D, tc.outlier_factor)
-        rays = _Rays(rays.dirs_cam[inl], rays.z[inl], rays.D[inl], rays.C[inl])
-        inliers = float(inl.float().mean())
-        loss, _, terms = _evaluate(scene, T, rays, cfg, jacobian=True)
-        if terms is None:
-            return TrackResult(init_pose.clone(), float("nan"), False, "non-finite tracking loss", 1)
-        lam, it, message = tc.gn_damping, 2, ""
-        while it < iters:
-            H, b = terms
-            step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * torch.eye(6, dtype=H.dtype), -b)
-            T_new = exp_se3(step.to(T.dtype)) @ T
-            it += 1
-            new_loss, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
-            small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
-            if new_terms is not None and new_loss < loss:
-                T, loss, terms, lam = T_new, new_loss, new_terms, lam / 3.0
-                if small:
-                    message = "converged"
-                    break
-            else:
-                lam *= 4.0
-                if small or lam > 1e4:
-                    message = "converged" if small else "no step lowers the loss"
-                    break
-    pose = normalize_pose(matrix_to_pose(T.cpu()))
-    return TrackResult(pose, loss, True, message, it, inliers)
+        for _ in range(tc.gn_rounds):
+            last = _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters)
+            total += last[3]
+            if last[0] is None:
+                break
+            done, T = last, last[0]
+    if done is None:
+        return TrackResult(init_pose.clone(), float("nan"), False, last[2], total)
+    T, loss, message, _, inliers = done  # a later round without rays or a finite loss keeps the earlier result
+    return TrackResult(normalize_pose(matrix_to_pose(T.cpu())), loss, True, message, total, inliers)
+
+
+def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
+    """One Levenberg-Marquardt solve from ``T`` ``[4, 4]`` on a fresh ray set: ``(T, loss, message, evaluations,
+    inlier share)``, ``T`` None when no ray set or finite loss was had."""
+    tc = cfg.tracking
+    rays = _draw_rays(scene, color, depth, intrinsics, T, cfg, generator)
+    if rays is None:
+        return None, float("nan"), "too few rays with valid depth inside the scene box", 0, float("nan")
+    _, rendered, _ = _evaluate(scene, T, rays, cfg, jacobian=False)
+    inl = tracking_inliers(rendered, rays.D, tc.outlier_factor)
+    rays = _Rays(rays.dirs_cam[inl], rays.z[inl], rays.D[inl], rays.C[inl])
+    inliers = float(inl.float().mean())
+    loss, _, terms = _evaluate(scene, T, rays, cfg, jacobian=True)
+    if terms is None:
+        return None, float("nan"), "non-finite tracking loss", 1, inliers
+    lam, it, message = tc.gn_damping, 2, ""
+    while it < iters:
+        H, b = terms
+        step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * torch.eye(6, dtype=H.dtype), -b)
+        T_new = exp_se3(step.to(T.dtype)) @ T
+        it += 1
+        new_loss, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
+        small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
+        if new_terms is not None and new_loss < loss:
+            T, loss, terms, lam = T_new, new_loss, new_terms, lam / 3.0
+            if small:
+                message = "converged"
+                break
+        else:
+            lam *= 4.0
+            if small or lam > 1e4:
+                message = "converged" if small else "no step lowers the loss"
+                break
+    return T, loss, message, it, inliers
