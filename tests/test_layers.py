@@ -41,6 +41,8 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("tdfields: tools over built fields",
      ("tdfields.checkpoint", "tdfields.report", "tdfields.resize", "tdfields.decoders")),
     ("tdfields: the face and its command", ("tdfields", "tdfields.__main__")),
+    ("tdfields: integrations with other libraries (each imports its library itself)",
+     ("tdfields.integrations", "tdfields.integrations.*")),
     ("slam: leaves", ("slam", "slam._deps", "slam.errors", "slam.files", "slam.data.types")),
     ("slam.core: the functional core (tensors in, tensors out)", ("slam.core", "slam.core.*")),
     ("slam.config: typed configs and presets", ("slam.config", "slam.config.*")),
