@@ -1,0 +1,166 @@
+"""The long walk (issue 24): lrslam and eslam on the synthetic walk (``--config synthetic/walk``: three connected
+rooms along a 20 m building) over seeds, with the map growing as the camera walks, against the fixed box from the
+first frames.
+
+For every (representation, seed) it runs ``lrslam run`` (``slam.run.runner.run_to_folder``) on the first
+``--frames`` frames and keeps ATE, the mesh's accuracy and completion against the walk's ground-truth mesh, frame
+time, growths and the final parameters and field bytes. For seed 0 of each it reads ``frames.csv`` (parameters
+and bytes after every frame) and the ground-truth trajectory to give parameters and bytes against the distance
+walked. The baseline is lrslam with ``scene.grow=false`` (the box from the first frames, seed 0): its completion
+ratio is how much of the walked building a fixed box maps.
+
+Usage::
+
+    python benchmarks/walk_study.py --frames 1050 --seeds 5 --out benchmarks/results/walk --docs
+
+Writes ``walk_study.json`` (every run's values per seed, the summaries, the per-frame series), ``walk_study.png``
+(parameters and bytes against metres walked) and, with ``--docs``, the table into docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+CONFIGS = {"lrslam": ["representation=lrslam"], "eslam": ["representation=eslam"],
+           "lrslam, fixed box": ["representation=lrslam", "scene.grow=false"]}
+
+
+def run(name: str, seed: int, frames: int, mesh_resolution: float, out: Path) -> dict:
+    from slam.config import load_config
+    from slam.run.runner import run_to_folder
+
+    folder = out / "runs" / f"{name.replace(', ', '_').replace(' ', '_')}_s{seed}"
+    cfg = load_config("synthetic/walk", [*CONFIGS[name], f"seed={seed}", f"data.max_frames={frames}",
+                                         f"meshing.resolution={mesh_resolution}"])
+    t0 = time.perf_counter()
+    m = run_to_folder(cfg, folder, progress=True)
+    rec = m.get("reconstruction") or {}
+    cm = (lambda v: None if v is None else 100 * v)
+    return {"config": name, "seed": seed, "folder": str(folder.relative_to(out)), "wall_s": time.perf_counter() - t0,
+            "ate_rmse_cm": cm(m.get("ate_rmse_m")), "accuracy_cm": cm(rec.get("accuracy_m")),
+            "completion_cm": cm(rec.get("completion_m")),
+            "completion_ratio_pct": None if rec.get("completion_ratio") is None else 100 * rec["completion_ratio"],
+            "fpt_s": m["fpt_s"], "growths": sum(str(e.get("event", "")).startswith("scene box grown")
+                                                for e in m.get("events", [])),
+            "events": len(m.get("events", [])), "parameters": m["parameters"]["total"]}
+
+
+def series(out: Path, folder: str) -> list[dict]:
+    """``[{frame, metres, parameters, field_bytes}]`` of one run: metres walked along the ground truth."""
+    import numpy as np
+
+    gt = np.loadtxt(out / folder / "trajectory_gt.txt", comments="#", ndmin=2)[:, 1:4]
+    walked = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt, axis=0), axis=1))])
+    rows = list(csv.DictReader(open(out / folder / "frames.csv")))
+    return [{"frame": int(r["k"]), "metres": float(walked[min(int(r["k"]), len(walked) - 1)]),
+             "parameters": int(r["parameters"]), "field_bytes": int(r["field_bytes"])}
+            for r in rows if r["parameters"] != ""]
+
+
+def summary(runs: list[dict]) -> list[dict]:
+    out = []
+    for name in dict.fromkeys(r["config"] for r in runs):
+        rs = [r for r in runs if r["config"] == name]
+        rec = {"config": name, "seeds": [r["seed"] for r in rs]}
+        for key in ("ate_rmse_cm", "accuracy_cm", "completion_cm", "completion_ratio_pct", "fpt_s", "growths",
+                    "parameters"):
+            vals = [r[key] for r in rs if r[key] is not None]
+            rec[key] = {"values": vals, "mean": statistics.fmean(vals) if vals else None,
+                        "std": statistics.stdev(vals) if len(vals) > 1 else None}
+        out.append(rec)
+    return out
+
+
+def plot(curves: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for name, pts in curves.items():
+        m = [p["metres"] for p in pts]
+        axes[0].plot(m, [p["parameters"] / 1e6 for p in pts], label=name)
+        axes[1].plot(m, [p["field_bytes"] / 2**20 for p in pts], label=name)
+    axes[0].set_ylabel("parameters (millions)")
+    axes[1].set_ylabel("field bytes (MiB)")
+    for ax in axes:
+        ax.set_xlabel("metres walked (ground truth)")
+        ax.legend(fontsize=8)
+    fig.suptitle("The map grows with the walk (synthetic walk, seed 0)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def table(summ: list[dict], curves: dict, st: dict, frames: int, seeds: int) -> str:
+    def pm(s, d=2):
+        if s["mean"] is None:
+            return "-"
+        return f"{s['mean']:.{d}f}" + ("" if s["std"] is None else f" ± {s['std']:.{d}f}")
+
+    lines = [f"Measured {st['date']} with tdfields {st['tdfields_version']}, torch {st['torch_version']}, on "
+             f"{st['cpu']}, 1 thread per run; synthetic walk, first {frames} frames, seeds 0-{seeds - 1} "
+             "(the fixed box: seed 0).", "",
+             "| config | seeds | ATE RMSE cm | accuracy cm | completion cm | completion ratio % | growths | "
+             "parameters at the end | field MiB at the end | metres walked | FPT s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for s in summ:
+        c = curves.get(s["config"])
+        mib = "-" if not c else f"{c[-1]['field_bytes'] / 2**20:.2f}"
+        walked = "-" if not c else f"{c[-1]['metres']:.1f}"
+        lines.append(f"| {s['config']} | {len(s['seeds'])} | {pm(s['ate_rmse_cm'])} | {pm(s['accuracy_cm'])} | "
+                     f"{pm(s['completion_cm'])} | {pm(s['completion_ratio_pct'], 1)} | {pm(s['growths'], 1)} | "
+                     f"{int(s['parameters']['mean']):,} | {mib} | {walked} | {pm(s['fpt_s'], 3)} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=1050, help="frames of the walk (1050: the way out, 20 m)")
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    ap.add_argument("--mesh-resolution", type=float, default=0.04, help="marching-cubes cell (m) for the metrics")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "walk"))
+    ap.add_argument("--docs", action="store_true", help="write the table into docs/benchmarks.md (block walk-study)")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    from _stamp import stamp, write_block
+
+    runs = []
+    partial = out / "walk_study.partial.json"
+    for seed in range(args.seeds):  # seeds outermost: a stopped study has every config at the first seeds
+        for name in args.configs:
+            if name.endswith("fixed box") and seed > 0:
+                continue
+            runs.append(run(name, seed, args.frames, args.mesh_resolution, out))
+            partial.write_text(json.dumps(runs, indent=1))
+    curves = {r["config"]: series(out, r["folder"]) for r in runs if r["seed"] == 0}
+    summ = summary(runs)
+    st = stamp()
+    (out / "walk_study.json").write_text(json.dumps({"stamp": st, "frames": args.frames, "runs": runs,
+                                                     "summary": summ, "series": curves}, indent=1))
+    partial.unlink()
+    plot(curves, out / "walk_study.png")
+    text = table(summ, curves, st, args.frames, args.seeds)
+    print(text)
+    if args.docs:
+        import shutil
+
+        shutil.copy(out / "walk_study.png", ROOT / "docs" / "images" / "walk_study.png")
+        write_block(ROOT / "docs" / "benchmarks.md", "walk-study", text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
