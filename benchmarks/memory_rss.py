@@ -208,8 +208,9 @@ def plot(results: list[dict], path: Path, title: str) -> None:
 
 
 def table(results: list[dict], st: dict, title: str) -> str:
-    lines = [f"Measured {st['date']} with tdfields {st['tdfields_version']}, torch {st['torch_version']}, on "
-             f"{st['cpu']}; {title}.", "",
+    from _stamp import stamp_line
+
+    lines = [f"{stamp_line(st)} {title}.", "",
              "| preset | setting | keyframes | peak RSS | final RSS | base | scene | keyframes in RAM | on disk | "
              "records | working | RSS growth / 100 frames after frame N | ATE RMSE |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -256,6 +257,10 @@ def main(argv=None) -> int:
         presets = args.presets or ["tum/fr1_rpy-cpu"]
         title = f"TUM fr1_rpy pairs 0-224 forth and back to {args.frames} frames"
     from _stamp import stamp, write_block
+
+    import torch
+
+    torch.set_num_threads(1)  # the stamp names the runs' thread count (threads: 1 in every preset), not this process's
 
     results = []
     for preset in presets:

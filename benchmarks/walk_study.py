@@ -108,16 +108,16 @@ def table(summ: list[dict], curves: dict, st: dict, frames: int, seeds: int) -> 
             return "-"
         return f"{s['mean']:.{d}f}" + ("" if s["std"] is None else f" ± {s['std']:.{d}f}")
 
-    lines = [f"Measured {st['date']} with tdfields {st['tdfields_version']}, torch {st['torch_version']}, on "
-             f"{st['cpu']}, 1 thread per run; synthetic walk, first {frames} frames, seeds 0-{seeds - 1} "
-             "(the fixed box: seed 0).", "",
+    from _stamp import stamp_line
+
+    lines = [f"{stamp_line(st)} Synthetic walk, first {frames} frames, seeds 0-{seeds - 1} (the fixed box: seed 0).",
+             "",
              "| config | seeds | ATE RMSE cm | accuracy cm | completion cm | completion ratio % | growths | "
              "parameters at the end | field MiB at the end | metres walked | FPT s |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in summ:
-        c = curves.get(s["config"])
-        mib = "-" if not c else f"{c[-1]['field_bytes'] / 2**20:.2f}"
-        walked = "-" if not c else f"{c[-1]['metres']:.1f}"
+        end = (curves.get(s["config"]) or [None])[-1]
+        mib, walked = ("-", "-") if end is None else (f"{end['field_bytes'] / 2**20:.2f}", f"{end['metres']:.1f}")
         lines.append(f"| {s['config']} | {len(s['seeds'])} | {pm(s['ate_rmse_cm'])} | {pm(s['accuracy_cm'])} | "
                      f"{pm(s['completion_cm'])} | {pm(s['completion_ratio_pct'], 1)} | {pm(s['growths'], 1)} | "
                      f"{int(s['parameters']['mean']):,} | {mib} | {walked} | {pm(s['fpt_s'], 3)} |")
@@ -136,6 +136,10 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from _stamp import stamp, write_block
+
+    import torch
+
+    torch.set_num_threads(1)  # the stamp names the runs' thread count (threads: 1 in every preset), not this process's
 
     runs = []
     partial = out / "walk_study.partial.json"
