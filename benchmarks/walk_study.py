@@ -132,6 +132,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mesh-resolution", type=float, default=0.04, help="marching-cubes cell (m) for the metrics")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "walk"))
     ap.add_argument("--docs", action="store_true", help="write the table into docs/benchmarks.md (block walk-study)")
+    ap.add_argument("--from-partial", action="store_true", help="run nothing: summarise the runs a stopped study "
+                    "finished (OUT/walk_study.partial.json; seeds outermost, so each finished seed has every config)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -143,7 +145,13 @@ def main(argv=None) -> int:
 
     runs = []
     partial = out / "walk_study.partial.json"
-    for seed in range(args.seeds):  # seeds outermost: a stopped study has every config at the first seeds
+    if args.from_partial:
+        runs = json.loads(partial.read_text())
+        last = max(r["seed"] for r in runs)  # a seed whose configs did not all finish is left out
+        if {r["config"] for r in runs if r["seed"] == last} != {c for c in args.configs if "fixed" not in c}:
+            runs = [r for r in runs if r["seed"] < last]
+        args.seeds = max(r["seed"] for r in runs) + 1
+    for seed in ([] if args.from_partial else range(args.seeds)):  # seeds outermost: see --from-partial
         for name in args.configs:
             if name.endswith("fixed box") and seed > 0:
                 continue
@@ -154,7 +162,8 @@ def main(argv=None) -> int:
     st = stamp()
     (out / "walk_study.json").write_text(json.dumps({"stamp": st, "frames": args.frames, "runs": runs,
                                                      "summary": summ, "series": curves}, indent=1))
-    partial.unlink()
+    if not args.from_partial:
+        partial.unlink()
     plot(curves, out / "walk_study.png")
     text = table(summ, curves, st, args.frames, args.seeds)
     print(text)
