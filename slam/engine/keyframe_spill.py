@@ -78,8 +78,8 @@ class SpillFile:
             slot = self._free.pop() if self._free else self._slots
             try:
                 self._fh.seek(slot * size)
-                self._fh.write(c.tobytes())
-                self._fh.write(d.tobytes())
+                self._fh.write(c.data)  # the arrays' own buffers: no copy
+                self._fh.write(d.data)
                 self._fh.flush()
             except OSError:
                 if slot != self._slots:

@@ -35,14 +35,18 @@ class Keyframe:
             return self.spilled.read()
         return color, depth
 
+    def float_images(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(rgb [H, W, 3] in [0, 1], depth [H, W] in metres)``, float32, from one read of a spilled keyframe."""
+        color, depth = self.images()
+        return (color.float() / 255.0 if color.dtype == torch.uint8 else color.float()), depth.float()
+
     def rgb(self) -> torch.Tensor:
         """``[H, W, 3]`` float32 RGB in [0, 1]."""
-        color = self.images()[0]
-        return color.float() / 255.0 if color.dtype == torch.uint8 else color.float()
+        return self.float_images()[0]
 
     def metres(self) -> torch.Tensor:
         """``[H, W]`` float32 depth in metres."""
-        return self.images()[1].float()
+        return self.float_images()[1]
 
     @property
     def nbytes(self) -> int:

@@ -72,8 +72,9 @@ def _window_frames(keyframes: KeyframeStore, window: list[int], index: int, colo
     frames = [keyframes.frames[i] for i in window]
     frame_ids = [kf.index for kf in frames] + [index]
     poses0 = torch.stack([kf.pose for kf in frames] + [pose.cpu()]).to(device)
-    colors = torch.stack([c.to(device) for c in [kf.rgb() for kf in frames] + [color]])
-    depths = torch.stack([d.to(device) for d in [kf.metres() for kf in frames] + [depth]])
+    images = [kf.float_images() for kf in frames]  # one read each of the keyframes spilled to disk
+    colors = torch.stack([c.to(device) for c in [c for c, _ in images] + [color]])
+    depths = torch.stack([d.to(device) for d in [d for _, d in images] + [depth]])
     return colors, depths, poses0, frame_ids
 
 
