@@ -45,10 +45,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True, help="JSON file for the hashes")
     ap.add_argument("--against", type=Path, help="an earlier JSON file: exit 1 unless every hash equals it")
     ap.add_argument("--frames", type=int, default=30)
+    ap.add_argument("--sequences", nargs="+", choices=sorted(SEQUENCES), default=list(SEQUENCES),
+                    help="which sequences to run (default: all)")
     args = ap.parse_args(argv)
     hashes = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, (preset, data) in SEQUENCES.items():
+        for name in args.sequences:
+            preset, data = SEQUENCES[name]
             for parallel in (False, True):
                 case = f"{name}/{'parallel' if parallel else 'serial'}"
                 t0 = time.perf_counter()

@@ -138,6 +138,16 @@ def test_max_keyframes_below_three_breaks_the_keep_first_and_last_two_rule(n):
     assert load_config("synthetic", ["mapping.max_keyframes=3"]).mapping.max_keyframes == 3
 
 
+def test_keyframe_spill_dir_must_exist(tmp_path):
+    missing = tmp_path / "no such dir"
+    with pytest.raises(SlamInputError, match="'mapping.keyframe_spill_dir' = .*no such dir.* is not a directory"):
+        load_config("synthetic", [f"mapping.keyframe_spill_dir={missing}"])
+    (tmp_path / "a file").write_text("")
+    with pytest.raises(SlamInputError, match="is not a directory"):
+        load_config("synthetic", [f"mapping.keyframe_spill_dir={tmp_path / 'a file'}"])
+    assert load_config("synthetic", [f"mapping.keyframe_spill_dir={tmp_path}"]).mapping.keyframe_spill_dir == str(tmp_path)
+
+
 def test_ignore_edge_must_leave_pixels_in_the_working_image(tiny_seq, capsys):
     from slam.cli import main
 
