@@ -13,7 +13,9 @@ step; a step that does not lower the loss is refused and the damping raised.
 Unlike the Adam tracker (:mod:`slam.engine.tracker`) one set of pixels and one jitter of the samples is drawn per
 call, so every evaluation is of the same objective and the loss decides which step to keep. The call stops
 when a step moves the camera by less than ``gn_step_m`` metres and ``gn_step_deg`` degrees, or after ``iters``
-evaluations. Rays are kept where the starting pose sees their surface inside the box, and the outlier rule
+evaluations. With ``gn_prior`` = kappa > 0 the solve minimises the loss plus ``kappa e^T diag(H0) e``, ``e`` the
+tangent from the start pose and ``H0`` the normal matrix there: a prior holding the pose near its (ICP) start, as
+strong per axis as kappa times the data's own curvature there; the loss reported is the data term alone. Rays are kept where the starting pose sees their surface inside the box, and the outlier rule
 (``outlier_factor``) is applied once, at the start.
 """
 
@@ -177,15 +179,22 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
     if terms is None:
         return None, float("nan"), "non-finite tracking loss", 1, inliers
     lam, it, message = tc.gn_damping, 2, ""
+    # the prior kappa * e^T P e on the tangent e from the start (summed steps: small motions), P = diag(H) there
+    P = tc.gn_prior * torch.diag(torch.diag(terms[0]))
+    e = torch.zeros(6, dtype=P.dtype)
+    data_loss = loss
     while it < iters:
         H, b = terms
+        H, b = H + P, b + P @ e
         step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * torch.eye(6, dtype=H.dtype), -b)
         T_new = exp_se3(step.to(T.dtype)) @ T
         it += 1
-        new_loss, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
+        new_data, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
+        e_new = e + step
+        new_loss = new_data + float(e_new @ P @ e_new)
         small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
         if new_terms is not None and new_loss < loss:
-            T, loss, terms, lam = T_new, new_loss, new_terms, lam / 3.0
+            T, loss, terms, lam, e, data_loss = T_new, new_loss, new_terms, lam / 3.0, e_new, new_data
             if small:
                 message = "converged"
                 break
@@ -194,4 +203,4 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
             if small or lam > 1e4:
                 message = "converged" if small else "no step lowers the loss"
                 break
-    return T, loss, message, it, inliers
+    return T, data_loss, message, it, inliers
