@@ -143,9 +143,9 @@ class TrackingConfig:
     gn_step_deg: float = num(0.01, lo=0, hi=90.0)
     # ours: later rounds draw fresh pixels and redo the outlier rule at the pose the previous round reached
     gn_rounds: int = num(1, lo=1, hi=100)
-    # ours: once = one pixel draw per call, Levenberg-Marquardt on it (steps that do not lower its loss refused);
-    # every_step = fresh pixels at every evaluation, their normal equations summed (incremental Gauss-Newton)
-    gn_draw: str = choice("once", ("once", "every_step"))
+    # ours: a prior towards the start pose: kappa times the mean curvature of the rotation / translation axes, the
+    # same on every axis of each (0: none)
+    gn_prior: float = num(0.0, lo=0, hi=1e6)
 
 
 @dataclass

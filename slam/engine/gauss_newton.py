@@ -16,9 +16,12 @@ when a step moves the camera by less than ``gn_step_m`` metres and ``gn_step_deg
 evaluations. Rays are kept where the starting pose sees their surface inside the box, and the outlier rule
 (``outlier_factor``) is applied once, at the start.
 
-With ``tracking.gn_draw: every_step`` (:func:`_solve_incremental`) every evaluation draws fresh pixels at the pose
-reached so far and applies the outlier rule to its own rendering, and the steps solve the normal equations of all
-the draws together.
+With ``tracking.gn_prior`` = kappa > 0 the solve minimises the loss plus ``e^T P e``, ``e`` the tangent from the
+start pose (the ICP start) and ``P`` kappa times the start's mean curvature per group of axes (rotation,
+translation), the same on each axis of a group (:func:`_prior`). One draw of pixels constrains some directions
+barely, and there its optimum is mostly noise (docs/slam.md, "What it is: the draw's noise"); the prior keeps the
+pose near the start in those directions and leaves the well-constrained ones to the data. The loss reported is the
+data term alone.
 """
 
 from __future__ import annotations
@@ -78,40 +81,36 @@ def _loss(s, depth, color, rays: _Rays, cfg) -> torch.Tensor:
     return total_loss(s, rays.z, depth, color, rays.D, rays.C, cfg.scene.truncation, cfg.tracking.weights)[0]
 
 
-def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg, keep=None):
-    """``(H [6, 6], b [6])`` of the weighted normal equations at these points (float64), of the rays ``keep``
-    ``[R]`` (bool) only when given (the rays are differentiated together, then the kept ones are used)."""
+def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg):
+    """``(H [6, 6], b [6])`` of the weighted normal equations at these points (float64)."""
     T, wt = cfg.scene.truncation, cfg.tracking.weights
-    sub = (lambda x: x) if keep is None else (lambda x: x[keep])
+    R, N = rays.z.shape
     gs = torch.autograd.grad(s, pts, torch.ones_like(s), retain_graph=True)[0]  # [R, N, 3] d s / d p
     d_ds = torch.autograd.grad(depth, s_l, torch.ones_like(depth), retain_graph=True)[0]  # [R, N]
-    if keep is not None:
-        rays = _Rays(rays.dirs_cam[keep], rays.z[keep], rays.D[keep], rays.C[keep])
-        gs, d_ds = gs[keep], d_ds[keep]
-    R, N = rays.z.shape
-    p, sd, wd = sub(pts.detach()), sub(s.detach()), sub(w.detach())
     rows, resid, weights = [], [], []
     Dm = rays.D[:, None]
     front, center, tail = sdf_regions(rays.z, rays.D, T)
+    sd = s.detach()
     for mask, r, g, lam in ((front, sd - 1.0, gs, wt.fs), (center, rays.z + sd * T - Dm, T * gs, wt.center),
                             (tail, rays.z + sd * T - Dm, T * gs, wt.tail)):
         n = int(mask.sum())
         if n and lam:
-            rows.append(torch.cat((torch.cross(p[mask], g[mask], dim=-1), g[mask]), -1))
+            rows.append(torch.cat((torch.cross(pts[mask].detach(), g[mask], dim=-1), g[mask]), -1))
             resid.append(r[mask])
             weights.append(torch.full((n,), lam / n, dtype=sd.dtype))
+    p = pts.detach()
     if wt.depth:
         gd = d_ds[..., None] * gs
         rows.append(torch.cat((torch.cross(p, gd, dim=-1).sum(1), gd.sum(1)), -1))
-        resid.append(sub(depth.detach()) - rays.D)
+        resid.append(depth.detach() - rays.D)
         weights.append(torch.full((R,), wt.depth / R, dtype=sd.dtype))
     if wt.color:
         for c in range(3):
-            dc_ds = sub(torch.autograd.grad(color[:, c], s_l, torch.ones_like(depth), retain_graph=True)[0])
-            grgb = sub(torch.autograd.grad(rgb[..., c], pts, torch.ones_like(rgb[..., c]), retain_graph=c < 2)[0])
-            gc = dc_ds[..., None] * gs + wd[..., None] * grgb
+            dc_ds = torch.autograd.grad(color[:, c], s_l, torch.ones_like(depth), retain_graph=True)[0]
+            grgb = torch.autograd.grad(rgb[..., c], pts, torch.ones_like(rgb[..., c]), retain_graph=c < 2)[0]
+            gc = dc_ds[..., None] * gs + w.detach()[..., None] * grgb
             rows.append(torch.cat((torch.cross(p, gc, dim=-1).sum(1), gc.sum(1)), -1))
-            resid.append(sub(color.detach())[:, c] - rays.C[:, c])
+            resid.append(color.detach()[:, c] - rays.C[:, c])
             weights.append(torch.full((R,), wt.color / (3 * R), dtype=sd.dtype))
     J, r, W = torch.cat(rows).double(), torch.cat(resid).double(), torch.cat(weights).double()
     return J.T @ (W[:, None] * J), J.T @ (W * r)
@@ -136,25 +135,11 @@ def _draw_rays(scene, color, depth, intrinsics, T, cfg, generator) -> _Rays | No
     return _Rays(dirs_cam[keep], z, D[keep], C[keep])
 
 
-def _evaluate(scene, T, rays, cfg, jacobian: bool, outliers: bool = False):
-    """``(loss, rendered depth [R], (H, b) or None)`` at camera-to-world ``T``; with ``outliers`` the outlier rule
-    (``tracking.outlier_factor``) is applied to this evaluation's own rendering, and the loss and the normal
-    equations are of the inlier rays (then also returns their share as a fourth value)."""
+def _evaluate(scene, T, rays, cfg, jacobian: bool):
     pts = _points(T, rays).requires_grad_(jacobian)
     with torch.set_grad_enabled(jacobian):
         out = _render(scene, pts, rays, cfg.rendering.color_cutoff)
         s, rgb, s_l, rgb_l, w, depth, color = out
-        if outliers:
-            keep = tracking_inliers(depth.detach(), rays.D, cfg.tracking.outlier_factor)
-            kept = _Rays(rays.dirs_cam[keep], rays.z[keep], rays.D[keep], rays.C[keep])
-            share = float(keep.float().mean())
-            if int(keep.sum()) < 10:
-                return float("nan"), depth.detach(), None, share
-            loss = float(_loss(s.detach()[keep], depth.detach()[keep], color.detach()[keep], kept, cfg))
-            if not jacobian or not math.isfinite(loss):
-                return loss, depth.detach(), None, share
-            return loss, depth.detach(), _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays, cfg,
-                                                         keep), share
         loss = float(_loss(s.detach(), depth.detach(), color.detach(), rays, cfg))
         if not jacobian or not math.isfinite(loss):
             return loss, depth.detach(), None
@@ -172,12 +157,6 @@ def track_frame_gn(scene, color: torch.Tensor, depth: torch.Tensor, intrinsics, 
     T = pose_to_matrix(init_pose.to(depth.device).float()).detach()
     done, last, total = None, None, 0
     with tdfields.frozen(scene):
-        if tc.gn_draw == "every_step":
-            T, loss, message, n, inliers = _solve_incremental(scene, color, depth, intrinsics, T, cfg, generator,
-                                                              iters)
-            if T is None:
-                return TrackResult(init_pose.clone(), float("nan"), False, message, n)
-            return TrackResult(normalize_pose(matrix_to_pose(T.cpu())), loss, True, message, n, inliers)
         for _ in range(tc.gn_rounds):
             last = _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters)
             total += last[3]
@@ -205,15 +184,21 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
     if terms is None:
         return None, float("nan"), "non-finite tracking loss", 1, inliers
     lam, it, message = tc.gn_damping, 2, ""
+    P = _prior(terms[0], tc.gn_prior)
+    e = torch.zeros(6, dtype=P.dtype)  # the tangent from the start: the summed steps (small motions)
+    data_loss = loss
     while it < iters:
         H, b = terms
+        H, b = H + P, b + P @ e
         step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * torch.eye(6, dtype=H.dtype), -b)
         T_new = exp_se3(step.to(T.dtype)) @ T
         it += 1
-        new_loss, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
+        new_data, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
+        e_new = e + step
+        new_loss = new_data + float(e_new @ P @ e_new)
         small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
         if new_terms is not None and new_loss < loss:
-            T, loss, terms, lam = T_new, new_loss, new_terms, lam / 3.0
+            T, loss, terms, lam, e, data_loss = T_new, new_loss, new_terms, lam / 3.0, e_new, new_data
             if small:
                 message = "converged"
                 break
@@ -222,61 +207,12 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
             if small or lam > 1e4:
                 message = "converged" if small else "no step lowers the loss"
                 break
-    return T, loss, message, it, inliers
+    return T, data_loss, message, it, inliers
 
 
-# a draw whose own step is longer than this is taken as "far from the optimum": the sums restart from it (the
-# composited depth is linear only within a few mm of a surface, tests/slam/engine/test_gauss_newton.py)
-ACCUMULATE_WITHIN_M, ACCUMULATE_WITHIN_DEG = 0.005, 0.25
-
-
-def _solve(H: torch.Tensor, b: torch.Tensor, damping: float) -> torch.Tensor:
-    """The damped Gauss-Newton step ``[6]`` of the normal equations ``H xi = -b``."""
-    return torch.linalg.solve(H + damping * torch.diag(torch.diag(H)) + 1e-12 * torch.eye(6, dtype=H.dtype), -b)
-
-
-def _large(step: torch.Tensor) -> bool:
-    return float(step[3:].norm()) > ACCUMULATE_WITHIN_M or math.degrees(float(step[:3].norm())) > ACCUMULATE_WITHIN_DEG
-
-
-def _solve_incremental(scene, color, depth, intrinsics, T, cfg, generator, iters):
-    """Incremental Gauss-Newton (``tracking.gn_draw: every_step``): every evaluation draws fresh pixels and a
-    fresh jitter at the current pose, applies the outlier rule to its own rendering and adds its normal equations,
-    moved to the current pose to first order (``b_j + H_j (x - x_j)``, ``x`` the summed steps from the start), to
-    those of the earlier draws; each step solves the sum. A draw whose own step would be longer than
-    ``ACCUMULATE_WITHIN_M`` / ``_DEG`` restarts the sums (far from the optimum the earlier linearisations do not
-    hold). So the pose converges to the optimum of all the draws
-    together (``iters`` x ``tracking.pixels`` pixels, as Adam sees across its iterations) instead of one draw's,
-    and no evaluation is spent on a refused step. The last step is solved after the last evaluation; the loss
-    reported is that evaluation's. Returns ``(T or None, loss, message, evaluations, inlier share)``."""
-    tc = cfg.tracking
-    Hs = torch.zeros(6, 6, dtype=torch.float64)
-    g0 = torch.zeros(6, dtype=torch.float64)  # sum of b_j - H_j x_j
-    x = torch.zeros(6, dtype=torch.float64)
-    loss, inliers, message, n, ok = float("nan"), float("nan"), "", 0, False
-    while n < iters:
-        rays = _draw_rays(scene, color, depth, intrinsics, T, cfg, generator)
-        if rays is None:
-            message = "too few rays with valid depth inside the scene box"
-            break
-        new_loss, _, terms, share = _evaluate(scene, T, rays, cfg, jacobian=True, outliers=True)
-        n += 1
-        if terms is None:
-            message = "too few inlier rays" if share * len(rays.D) < 10 else "non-finite tracking loss"
-            break
-        loss, inliers, ok = new_loss, share, True
-        H, b = terms
-        if _large(_solve(H, b, tc.gn_damping)):
-            # still far from the optimum: the earlier draws' linearisations do not hold here, start the sums anew
-            Hs, g0 = H, b - H @ x
-        else:
-            Hs, g0 = Hs + H, g0 + b - H @ x
-        step = _solve(Hs, g0 + Hs @ x, tc.gn_damping)
-        x = x + step
-        T = exp_se3(step.to(T.dtype)) @ T
-        if float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg:
-            message = "converged"
-            break
-    if not ok:
-        return None, float("nan"), message or "no evaluation", n, float("nan")
-    return T, loss, message, n, inliers
+def _prior(H: torch.Tensor, kappa: float) -> torch.Tensor:
+    """``[6, 6]`` metric of the prior towards the start (``tracking.gn_prior`` = kappa): kappa times the mean
+    curvature of the rotation axes and of the translation axes, the same on every axis of each, so a direction the
+    draw barely constrains is held as firmly as a well-constrained one."""
+    d = torch.diag(H)
+    return kappa * torch.diag(torch.cat((d[:3].mean().expand(3), d[3:].mean().expand(3))))

@@ -1,0 +1,161 @@
+"""Where a frame's time goes (issue 21): tracking, the ICP start, mapping and the tracker's wait for the mapper,
+for any checkout, interleaved.
+
+Each variant is a checkout plus ``lrslam run`` arguments (as in ``benchmarks/before_after.py``). Every repeat runs
+every variant once, in turn, each in a fresh process with one torch thread. Inside the child, the three functions
+every checkout since 29d2223 has under the same names -- ``icp_relative_pose`` (depth ICP: the start, and
+relocalisation), ``track_frame`` (the tracker, recovery attempts included) and ``map_frame`` (one mapping call,
+in the mapper's thread in parallel mode) -- are wrapped with timers wherever a module holds them, and the run's
+``metrics.json`` gives the loop time and ``mapping_wait_s``. Per frame: ``icp_s``, ``tracking_s`` (the tracker
+alone, the ICP start not included), ``mapping_s`` (the mapping calls' time divided by the frames; in parallel mode
+it overlaps tracking), ``wait_s`` and ``loop_s``; medians over repeats.
+
+    git worktree add /tmp/before 29d2223
+    python benchmarks/frame_breakdown.py --out benchmarks/results/frame_breakdown --repeats 2 \\
+        --variant "29d2223=/tmp/before:--config tum/fr1_rpy-cpu --data ../shared/data/tum_fr1_rpy_0_124" \\
+        --variant "now=.:--config tum/fr1_rpy-cpu --data ../shared/data/tum_fr1_rpy_0_124"
+
+Writes ``frame_breakdown.json`` (every run) and ``frame_breakdown.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+TIMED = ("icp_relative_pose", "track_frame", "map_frame")
+
+CHILD = r"""
+import json, sys, threading, time
+sys.path.insert(0, {checkout!r})
+import slam.cli
+import importlib, pkgutil, slam
+for m in pkgutil.walk_packages(slam.__path__, "slam."):
+    if m.name.endswith("__main__"):
+        continue  # importing it runs the CLI
+    try:
+        importlib.import_module(m.name)
+    except Exception:
+        pass
+totals = {{n: [0.0, 0] for n in {timed!r}}}
+lock = threading.Lock()
+originals = {{}}
+for mod in list(sys.modules.values()):
+    for n in {timed!r}:
+        f = getattr(mod, n, None)
+        if callable(f) and getattr(f, "__module__", "").startswith("slam"):
+            originals.setdefault(id(f), (n, f))
+def wrap(n, f):
+    def timed(*a, **k):
+        t0 = time.perf_counter()
+        try:
+            return f(*a, **k)
+        finally:
+            with lock:
+                totals[n][0] += time.perf_counter() - t0
+                totals[n][1] += 1
+    return timed
+wrapped = {{i: wrap(n, f) for i, (n, f) in originals.items()}}
+for mod in list(sys.modules.values()):
+    for n in {timed!r}:
+        f = getattr(mod, n, None)
+        if f is not None and id(f) in wrapped:
+            setattr(mod, n, wrapped[id(f)])
+rc = slam.cli.main({argv!r})
+json.dump({{n: {{"s": v[0], "calls": v[1]}} for n, v in totals.items()}}, open({out!r}, "w"))
+sys.exit(rc)
+"""
+
+
+def parse_variant(text: str) -> dict:
+    name, _, rest = text.partition("=")
+    checkout, _, args = rest.partition(":")
+    path = Path(checkout).resolve()
+    if not name or not (path / "slam").is_dir():
+        raise SystemExit(f"frame_breakdown: error: a variant is NAME=CHECKOUT:ARGS with a checkout of this project, "
+                         f"got {text!r}")
+    return {"name": name, "checkout": str(path), "args": shlex.split(args)}
+
+
+def run_variant(v: dict, out: Path, repeat: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        run_dir = Path(tmp) / "run"
+        timers = Path(tmp) / "timers.json"
+        argv = ["run", "--quiet", "--no-mesh", "--out", str(run_dir), *v["args"]]
+        code = CHILD.format(checkout=v["checkout"], timed=TIMED, argv=argv, out=str(timers))
+        env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=v["checkout"])
+        t0 = time.perf_counter()
+        p = subprocess.run([sys.executable, "-c", code], cwd=v["checkout"], env=env, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if p.returncode != 0:
+            raise SystemExit(f"frame_breakdown: {v['name']} failed:\n{p.stderr[-3000:]}")
+        t = json.loads(timers.read_text())
+        m = json.loads((run_dir / "metrics.json").read_text())
+    n = m["num_frames"]
+    icp, track, mapping = t["icp_relative_pose"], t["track_frame"], t["map_frame"]
+    return {"variant": v["name"], "repeat": repeat, "frames": n, "wall_s": wall, "ate_rmse_cm": 100 * m["ate_rmse_m"],
+            "fpt_s": m["fpt_s"], "loop_s": m.get("loop_s"), "per_frame": {
+                "icp_s": icp["s"] / n, "tracking_s": track["s"] / n, "mapping_s": mapping["s"] / n,
+                "wait_s": (m.get("mapping_wait_s") or 0.0) / n, "loop_s": (m.get("loop_s") or float("nan")) / n},
+            "calls": {"icp": icp["calls"], "tracking": track["calls"], "mapping": mapping["calls"]},
+            "per_call_s": {"icp": icp["s"] / max(icp["calls"], 1), "tracking": track["s"] / max(track["calls"], 1),
+                           "mapping": mapping["s"] / max(mapping["calls"], 1)}}
+
+
+def table(runs: list[dict], names: list[str]) -> str:
+    lines = ["| variant | runs | per frame: loop | tracking | ICP | mapping (calls / frame) | waiting | FPT | ATE cm |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    base = None
+    for name in names:
+        rs = [r for r in runs if r["variant"] == name]
+        med = {k: statistics.median(r["per_frame"][k] for r in rs) for k in rs[0]["per_frame"]}
+        fpt = statistics.median(r["fpt_s"] for r in rs)
+        base = base or fpt
+        calls = rs[0]["calls"]["mapping"] / rs[0]["frames"]
+        lines.append(f"| {name} | {len(rs)} | {med['loop_s'] * 1000:.0f} ms | {med['tracking_s'] * 1000:.0f} ms | "
+                     f"{med['icp_s'] * 1000:.0f} ms | {med['mapping_s'] * 1000:.0f} ms ({calls:.2f}) | "
+                     f"{med['wait_s'] * 1000:.0f} ms | {fpt:.3f} s ({fpt / base:.2f}x) | "
+                     f"{', '.join(sorted({'%.2f' % r['ate_rmse_cm'] for r in rs}))} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--variant", action="append", required=True, help="NAME=CHECKOUT:ARGS (repeat the option)")
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--out", type=Path, required=True)
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _stamp import stamp
+
+    variants = [parse_variant(v) for v in args.variant]
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs = []
+    for rep in range(args.repeats):
+        for v in variants:
+            runs.append(run_variant(v, args.out, rep))
+            r = runs[-1]["per_frame"]
+            print(f"{v['name']:24s} r{rep}: FPT {runs[-1]['fpt_s']:.3f} s, tracking {r['tracking_s'] * 1000:.0f} ms, "
+                  f"ICP {r['icp_s'] * 1000:.0f} ms, mapping {r['mapping_s'] * 1000:.0f} ms, waiting "
+                  f"{r['wait_s'] * 1000:.0f} ms a frame; ATE {runs[-1]['ate_rmse_cm']:.2f} cm", flush=True)
+    st = stamp()
+    text = table(runs, [v["name"] for v in variants])
+    (args.out / "frame_breakdown.json").write_text(json.dumps({"stamp": st, "command": " ".join(sys.argv),
+                                                              "variants": variants, "runs": runs}, indent=1) + "\n")
+    (args.out / "frame_breakdown.md").write_text(text + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
