@@ -19,7 +19,7 @@ evaluations. Rays are kept where the starting pose sees their surface inside the
 With ``tracking.gn_prior`` = kappa > 0 the solve minimises the loss plus ``e^T P e``, ``e`` the tangent from the
 start pose (the ICP start) and ``P`` kappa times the start's mean curvature per group of axes (rotation,
 translation), the same on each axis of a group (:func:`_prior`). One draw of pixels constrains some directions
-barely, and there its optimum is mostly noise (docs/slam.md, "What it is: the draw's noise"); the prior keeps the
+barely, and there its optimum is mostly noise (docs/slam.md, "A second-order tracker"); the prior keeps the
 pose near the start in those directions and leaves the well-constrained ones to the data. The loss reported is the
 data term alone.
 """
