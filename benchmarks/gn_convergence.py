@@ -37,7 +37,7 @@ def _first_within(distances: dict, mm: float = 1.0, deg: float = 0.1):
     return next((n for n, (d, r) in distances.items() if d * 1000 <= mm and r <= deg), None)
 
 
-def measure(frames: int, test_frames: list[int], offsets: list[float], extra: list[str]) -> dict:
+def measure(frames: int, test_frames: list[int], offsets: list[float], extra: list[str], device: str = "cpu") -> dict:
     from slam.config import load_config
     from slam.core.pose import exp_se3, matrix_to_pose
     from slam.engine.setup import load_data
@@ -46,7 +46,7 @@ def measure(frames: int, test_frames: list[int], offsets: list[float], extra: li
     from slam.engine.tracking_guard import motion
 
     cfg = load_config("synthetic", [f"data.max_frames={max(test_frames) + 1}", "parallel=false", *extra])
-    s = SLAM(cfg, load_data(cfg))
+    s = SLAM(cfg, load_data(cfg), device)
     for k in range(frames):
         s.step(k)
     s.finish()
@@ -86,7 +86,8 @@ def measure(frames: int, test_frames: list[int], offsets: list[float], extra: li
     s.close()
     return {"cases": cases, "gn_s_per_evaluation": statistics.median(t_gn),
             "adam_s_per_iteration": statistics.median(t_adam), "frames_mapped": frames,
-            "pixels": cfg.tracking.pixels, "samples": cfg.rendering.n_stratified + cfg.rendering.n_importance}
+            "pixels": cfg.tracking.pixels, "samples": cfg.rendering.n_stratified + cfg.rendering.n_importance,
+            "device": str(device)}
 
 
 def main(argv=None) -> int:
@@ -95,12 +96,13 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=12, help="frames mapped before the test frames")
     ap.add_argument("--test-frames", type=int, nargs="+", default=[12, 16])
     ap.add_argument("--offsets", type=float, nargs="+", default=[1.0, 3.0, 5.0], help="cm and degrees")
+    ap.add_argument("--device", default="cpu", help="torch device of the scene and frames (cuda: the GPU check)")
     ap.add_argument("overrides", nargs="*", help="config key=value for the synthetic preset")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from _stamp import stamp
 
-    res = measure(args.frames, args.test_frames, args.offsets, args.overrides)
+    res = measure(args.frames, args.test_frames, args.offsets, args.overrides, args.device)
     res.update(stamp())
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "gn_convergence.json").write_text(json.dumps(res, indent=1, default=str) + "\n")

@@ -97,13 +97,13 @@ def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg):
         if n and lam:
             rows.append(torch.cat((torch.cross(pts[mask].detach(), g[mask], dim=-1), g[mask]), -1))
             resid.append(r[mask])
-            weights.append(torch.full((n,), lam / n, dtype=sd.dtype))
+            weights.append(torch.full((n,), lam / n, dtype=sd.dtype, device=sd.device))
     p = pts.detach()
     if wt.depth:
         gd = d_ds[..., None] * gs
         rows.append(torch.cat((torch.cross(p, gd, dim=-1).sum(1), gd.sum(1)), -1))
         resid.append(depth.detach() - rays.D)
-        weights.append(torch.full((R,), wt.depth / R, dtype=sd.dtype))
+        weights.append(torch.full((R,), wt.depth / R, dtype=sd.dtype, device=sd.device))
     if wt.color:
         for c in range(3):
             dc_ds = torch.autograd.grad(color[:, c], s_l, torch.ones_like(depth), retain_graph=True)[0]
@@ -111,7 +111,7 @@ def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg):
             gc = dc_ds[..., None] * gs + w.detach()[..., None] * grgb
             rows.append(torch.cat((torch.cross(p, gc, dim=-1).sum(1), gc.sum(1)), -1))
             resid.append(color.detach()[:, c] - rays.C[:, c])
-            weights.append(torch.full((R,), wt.color / (3 * R), dtype=sd.dtype))
+            weights.append(torch.full((R,), wt.color / (3 * R), dtype=sd.dtype, device=sd.device))
     J, r, W = torch.cat(rows).double(), torch.cat(resid).double(), torch.cat(weights).double()
     return J.T @ (W[:, None] * J), J.T @ (W * r)
 
@@ -185,12 +185,13 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
         return None, float("nan"), "non-finite tracking loss", 1, inliers
     lam, it, message = tc.gn_damping, 2, ""
     P = _prior(terms[0], tc.gn_prior)
-    e = torch.zeros(6, dtype=P.dtype)  # the tangent from the start: the summed steps (small motions)
+    e = torch.zeros(6, dtype=P.dtype, device=P.device)  # the tangent from the start: the summed steps (small motions)
     data_loss = loss
     while it < iters:
         H, b = terms
         H, b = H + P, b + P @ e
-        step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * torch.eye(6, dtype=H.dtype), -b)
+        eye = torch.eye(6, dtype=H.dtype, device=H.device)
+        step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * eye, -b)
         T_new = exp_se3(step.to(T.dtype)) @ T
         it += 1
         new_data, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
