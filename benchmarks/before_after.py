@@ -32,13 +32,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def parse_variant(text: str) -> dict:
+    """``NAME=CHECKOUT:ARGS`` -> ``{name, checkout, args}`` (also used by frame_breakdown.py)."""
+    prog = Path(sys.argv[0]).stem
     name, _, rest = text.partition("=")
     checkout, _, args = rest.partition(":")
     if not name or not checkout:
-        raise SystemExit(f"before_after: error: a variant is NAME=CHECKOUT:ARGS, got {text!r}")
+        raise SystemExit(f"{prog}: error: a variant is NAME=CHECKOUT:ARGS, got {text!r}")
     path = Path(checkout).resolve()
     if not (path / "slam").is_dir():
-        raise SystemExit(f"before_after: error: {path} is not a checkout of this project (no slam/)")
+        raise SystemExit(f"{prog}: error: {path} is not a checkout of this project (no slam/)")
     return {"name": name, "checkout": str(path), "args": shlex.split(args)}
 
 

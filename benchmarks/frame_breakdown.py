@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shlex
 import statistics
 import subprocess
 import sys
@@ -33,6 +32,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from before_after import parse_variant  # noqa: E402
+
 TIMED = ("icp_relative_pose", "track_frame", "map_frame")
 
 CHILD = r"""
@@ -75,16 +77,6 @@ rc = slam.cli.main({argv!r})
 json.dump({{n: {{"s": v[0], "calls": v[1]}} for n, v in totals.items()}}, open({out!r}, "w"))
 sys.exit(rc)
 """
-
-
-def parse_variant(text: str) -> dict:
-    name, _, rest = text.partition("=")
-    checkout, _, args = rest.partition(":")
-    path = Path(checkout).resolve()
-    if not name or not (path / "slam").is_dir():
-        raise SystemExit(f"frame_breakdown: error: a variant is NAME=CHECKOUT:ARGS with a checkout of this project, "
-                         f"got {text!r}")
-    return {"name": name, "checkout": str(path), "args": shlex.split(args)}
 
 
 def run_variant(v: dict, out: Path, repeat: int) -> dict:
@@ -135,7 +127,6 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    sys.path.insert(0, str(ROOT / "benchmarks"))
     from _stamp import stamp
 
     variants = [parse_variant(v) for v in args.variant]

@@ -20,6 +20,7 @@ predicted increments of one cell on each side.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 from pathlib import Path
@@ -93,10 +94,10 @@ def main(argv=None) -> int:
     walk = json.loads(args.walk.read_text()) if args.walk else None
     res = {"stamp": stamp(), "steps": args.steps, "representations": {}}
     for rep in ("lrslam", "eslam"):
-        entry: dict = {"shapes": {}}
+        start, cell, _ = scene_at_start(rep)
+        entry: dict = {"shapes": {}, "cell_m": cell}
         for shape, axes in SHAPES.items():
-            scene, cell, _ = scene_at_start(rep)
-            entry["cell_m"] = cell
+            scene = copy.deepcopy(start)
             ser = grow_series(scene, cell, axes, args.steps)
             entry["shapes"][shape] = {"series": ser, "fit": fit(ser)}
             f = entry["shapes"][shape]["fit"]
@@ -107,8 +108,7 @@ def main(argv=None) -> int:
         # one cell on each single side: what a run's growth of that side adds
         side = {}
         for ax in "xyz":
-            scene, cell, _ = scene_at_start(rep)
-            ser = grow_series(scene, cell, (ax,), 1)
+            ser = grow_series(copy.deepcopy(start), cell, (ax,), 1)
             side[f"{ax}+"] = ser[1]["parameters"] - ser[0]["parameters"]
         entry["one_cell_per_side"] = side
         if walk is not None:

@@ -187,10 +187,10 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
     P = _prior(terms[0], tc.gn_prior)
     e = torch.zeros(6, dtype=P.dtype, device=P.device)  # the tangent from the start: the summed steps (small motions)
     data_loss = loss
+    eye = torch.eye(6, dtype=P.dtype, device=P.device)
     while it < iters:
         H, b = terms
         H, b = H + P, b + P @ e
-        eye = torch.eye(6, dtype=H.dtype, device=H.device)
         step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * eye, -b)
         T_new = exp_se3(step.to(T.dtype)) @ T
         it += 1

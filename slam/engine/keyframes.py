@@ -15,6 +15,11 @@ from slam.engine.keyframe_spill import SpillFile, SpilledImages
 log = logging.getLogger(__name__)
 
 
+def _float_rgb(color: torch.Tensor) -> torch.Tensor:
+    """Stored colour (uint8, or float in [0, 1]) -> float32 in [0, 1]."""
+    return color.float() / 255.0 if color.dtype == torch.uint8 else color.float()
+
+
 @dataclass
 class Keyframe:
     """One stored keyframe: ``color [H, W, 3]`` and ``depth [H, W]`` (metres) as stored, its estimated pose as
@@ -38,15 +43,15 @@ class Keyframe:
     def float_images(self) -> tuple[torch.Tensor, torch.Tensor]:
         """``(rgb [H, W, 3] in [0, 1], depth [H, W] in metres)``, float32, from one read of a spilled keyframe."""
         color, depth = self.images()
-        return (color.float() / 255.0 if color.dtype == torch.uint8 else color.float()), depth.float()
+        return _float_rgb(color), depth.float()
 
     def rgb(self) -> torch.Tensor:
         """``[H, W, 3]`` float32 RGB in [0, 1]."""
-        return self.float_images()[0]
+        return _float_rgb(self.images()[0])
 
     def metres(self) -> torch.Tensor:
         """``[H, W]`` float32 depth in metres."""
-        return self.float_images()[1]
+        return self.images()[1].float()
 
     @property
     def nbytes(self) -> int:

@@ -73,8 +73,8 @@ def _window_frames(keyframes: KeyframeStore, window: list[int], index: int, colo
     frame_ids = [kf.index for kf in frames] + [index]
     poses0 = torch.stack([kf.pose for kf in frames] + [pose.cpu()]).to(device)
     images = [kf.float_images() for kf in frames]  # one read each of the keyframes spilled to disk
-    colors = torch.stack([c.to(device) for c in [c for c, _ in images] + [color]])
-    depths = torch.stack([d.to(device) for d in [d for _, d in images] + [depth]])
+    colors = torch.stack([c.to(device) for c, _ in images] + [color.to(device)])
+    depths = torch.stack([d.to(device) for _, d in images] + [depth.to(device)])
     return colors, depths, poses0, frame_ids
 
 
