@@ -12,6 +12,9 @@ ratio is how much of the walked building a fixed box maps.
 Usage::
 
     python benchmarks/walk_study.py --frames 1050 --seeds 5 --out benchmarks/results/walk --docs
+    python benchmarks/walk_study.py --frames 2100 --seeds 5 --continue --out benchmarks/results/walk_full
+        # the whole walk, spread over sittings: each runs what is missing and may be stopped at any time;
+        # --from-partial then summarises the seeds every config has finished
 
 Writes ``walk_study.json`` (every run's values per seed, the summaries, the per-frame series), ``walk_study.png``
 (parameters and bytes against metres walked) and, with ``--docs``, the table into docs/benchmarks.md.
@@ -46,7 +49,8 @@ def run(name: str, seed: int, frames: int, mesh_resolution: float, out: Path) ->
     m = run_to_folder(cfg, folder, progress=True)
     rec = m.get("reconstruction") or {}
     cm = (lambda v: None if v is None else 100 * v)
-    return {"config": name, "seed": seed, "folder": str(folder.relative_to(out)), "wall_s": time.perf_counter() - t0,
+    return {"config": name, "seed": seed, "frames": frames, "folder": str(folder.relative_to(out)),
+            "wall_s": time.perf_counter() - t0,
             "ate_rmse_cm": cm(m.get("ate_rmse_m")), "accuracy_cm": cm(rec.get("accuracy_m")),
             "completion_cm": cm(rec.get("completion_m")),
             "completion_ratio_pct": None if rec.get("completion_ratio") is None else 100 * rec["completion_ratio"],
@@ -132,6 +136,10 @@ def main(argv=None) -> int:
     ap.add_argument("--mesh-resolution", type=float, default=0.04, help="marching-cubes cell (m) for the metrics")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "walk"))
     ap.add_argument("--docs", action="store_true", help="write the table into docs/benchmarks.md (block walk-study)")
+    ap.add_argument("--continue", dest="resume", action="store_true",
+                    help="keep the runs OUT/walk_study.partial.json already holds (same --frames) and run only the "
+                    "missing (config, seed) pairs: a study too long for one sitting is spread over several, killed "
+                    "at any time between runs or within one (that run is redone)")
     ap.add_argument("--from-partial", action="store_true", help="run nothing: summarise the runs a stopped study "
                     "finished (OUT/walk_study.partial.json; seeds outermost, so each finished seed has every config)")
     args = ap.parse_args(argv)
@@ -151,13 +159,24 @@ def main(argv=None) -> int:
         if {r["config"] for r in runs if r["seed"] == last} != {c for c in args.configs if "fixed" not in c}:
             runs = [r for r in runs if r["seed"] < last]
         args.seeds = max(r["seed"] for r in runs) + 1
+    elif args.resume and partial.exists():
+        runs = json.loads(partial.read_text())
+        other = sorted({r.get("frames") for r in runs} - {args.frames}, key=str)
+        if other:
+            raise SystemExit(f"{partial}: runs of {other} frames, not --frames {args.frames}; another --out, or "
+                             "remove the file")
+    done = {(r["config"], r["seed"]) for r in runs}
     for seed in ([] if args.from_partial else range(args.seeds)):  # seeds outermost: see --from-partial
         for name in args.configs:
-            if name.endswith("fixed box") and seed > 0:
+            if (name.endswith("fixed box") and seed > 0) or (name, seed) in done:
                 continue
-            runs.append(run(name, seed, args.frames, args.mesh_resolution, out))
+            rec = run(name, seed, args.frames, args.mesh_resolution, out)
+            if seed == 0:  # kept with the run: a later sitting may not have this one's run folder
+                rec["series"] = series(out, rec["folder"])
+            runs.append(rec)
             partial.write_text(json.dumps(runs, indent=1))
-    curves = {r["config"]: series(out, r["folder"]) for r in runs if r["seed"] == 0}
+    curves = {r["config"]: r.get("series") or series(out, r["folder"]) for r in runs if r["seed"] == 0}
+    runs = [{k: v for k, v in r.items() if k != "series"} for r in runs]
     summ = summary(runs)
     st = stamp()
     (out / "walk_study.json").write_text(json.dumps({"stamp": st, "frames": args.frames, "runs": runs,

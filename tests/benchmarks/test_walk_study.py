@@ -1,0 +1,74 @@
+"""benchmarks/walk_study.py's bookkeeping, with its SLAM runs replaced by records (a whole walk run takes half an
+hour): ``--continue`` keeps what a stopped sitting finished and runs only the missing (config, seed) pairs, refuses
+a partial file of another length, and the curves of seed 0 come from the records, not the run folders."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "walk_study.py"
+
+
+@pytest.fixture
+def study(monkeypatch):
+    spec = importlib.util.spec_from_file_location("walk_study", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    calls = []
+
+    def fake_run(name, seed, frames, mesh_resolution, out):
+        calls.append((name, seed))
+        if len(calls) == fake_run.fail_at:
+            raise KeyboardInterrupt  # the sitting ends within a run
+        return {"config": name, "seed": seed, "frames": frames, "folder": f"runs/{name}_s{seed}", "wall_s": 1.0,
+                "ate_rmse_cm": 2.0 + seed, "accuracy_cm": 1.0, "completion_cm": 1.0, "completion_ratio_pct": 90.0,
+                "fpt_s": 0.5, "growths": 3, "events": 3, "parameters": 100 + seed}
+
+    fake_run.fail_at = 0
+    monkeypatch.setattr(module, "run", fake_run)
+    # seed 0's per-frame curve: what series() would read from that run's folder
+    monkeypatch.setattr(module, "series", lambda out, folder: [{"frame": 0, "metres": 0.0, "parameters": 100,
+                                                                "field_bytes": 400, "from": folder}])
+    monkeypatch.setattr(module, "plot", lambda curves, path: None)
+    sys.path.insert(0, str(SCRIPT.parent))
+    threads = torch.get_num_threads()  # main() sets one thread for its runs
+    yield module, calls, fake_run
+    torch.set_num_threads(threads)
+    sys.path.remove(str(SCRIPT.parent))
+
+
+def test_continue_runs_only_what_is_missing(study, tmp_path, monkeypatch):
+    module, calls, fake_run = study
+    args = ["--frames", "20", "--seeds", "2", "--configs", "lrslam", "eslam", "--out", str(tmp_path)]
+    fake_run.fail_at = 3  # lrslam s0, eslam s0 finish; lrslam s1 is cut
+    with pytest.raises(KeyboardInterrupt):
+        module.main(args)
+    partial = json.loads((tmp_path / "walk_study.partial.json").read_text())
+    assert [(r["config"], r["seed"]) for r in partial] == [("lrslam", 0), ("eslam", 0)]
+    assert partial[0]["series"][0]["from"] == "runs/lrslam_s0"
+
+    calls.clear()
+    fake_run.fail_at = 0
+    monkeypatch.setattr(module, "series", lambda out, folder: pytest.fail("seed 0's curve must come from its record"))
+    assert module.main(args + ["--continue"]) == 0
+    assert calls == [("lrslam", 1), ("eslam", 1)]
+    result = json.loads((tmp_path / "walk_study.json").read_text())
+    assert [(r["config"], r["seed"]) for r in result["runs"]] == [("lrslam", 0), ("eslam", 0), ("lrslam", 1),
+                                                                   ("eslam", 1)]
+    assert all("series" not in r for r in result["runs"])
+    ate = {s["config"]: s["ate_rmse_cm"]["values"] for s in result["summary"]}
+    assert ate == {"lrslam": [2.0, 3.0], "eslam": [2.0, 3.0]}
+    assert result["series"]["eslam"][0]["from"] == "runs/eslam_s0"
+    assert not (tmp_path / "walk_study.partial.json").exists()
+
+
+def test_continue_refuses_another_length(study, tmp_path):
+    module, calls, fake_run = study
+    (tmp_path / "walk_study.partial.json").write_text(json.dumps([{"config": "lrslam", "seed": 0, "frames": 300}]))
+    with pytest.raises(SystemExit, match="runs of \\[300\\] frames, not --frames 20"):
+        module.main(["--frames", "20", "--seeds", "1", "--configs", "lrslam", "--continue", "--out", str(tmp_path)])
+    assert calls == []
