@@ -160,7 +160,7 @@ def main(argv=None) -> int:
     import tdfields
     from slam.config import REPRESENTATIONS, load_config
     from slam.errors import SlamInputError
-    from slam.engine.runtime import cpu_name
+    from slam.engine.runtime import cpu_name, float_fingerprint
 
     bad = [r for r in args.representations if r not in REPRESENTATIONS]
     if bad:
@@ -209,7 +209,7 @@ def main(argv=None) -> int:
         print(f"FAILED {f['label']}: {f['error']}", file=sys.stderr)
     stamp = {"date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "version": tdfields.__version__,
              "cpu": cpu_name(), "threads": 1, "torch": torch.__version__, "jobs": args.jobs,
-             "engine": getattr(engine, "name", "serial")}
+             "engine": getattr(engine, "name", "serial"), "float_fingerprint": float_fingerprint()}
     command = "python benchmarks/slam_compare.py " + " ".join(argv if argv is not None else sys.argv[1:])
     summary = summarize(rows)
     (out / "slam_compare.json").write_text(json.dumps(

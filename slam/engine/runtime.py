@@ -1,12 +1,14 @@
 """Process-wide runtime settings a SLAM run applies (CPU threads, the C allocator's treatment of big tensors and
-the return of its free pages) and what it records of the machine (:func:`cpu_name`). All are global to the process, so they live here
-and not in the scene or the fields.
+the return of its free pages) and what it records of the machine (:func:`cpu_name`, :func:`float_fingerprint`).
+All are global to the process, so they live here and not in the scene or the fields.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
+import hashlib
 import logging
 import platform
 from pathlib import Path
@@ -90,3 +92,27 @@ def cpu_name() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
+
+
+@functools.cache
+def float_fingerprint() -> str:
+    """16 hex digits that differ between machines whose float32 arithmetic rounds differently, for stamping seeded
+    runs: a seed repeats a run exactly only where this agrees (docs/slam.md, "Pair runs only from one machine").
+
+    The sha256 of a fixed matrix product and of tanh / exp / sigmoid over its result, at one torch thread (the
+    runs' count): BLAS and vector-math kernels chosen for the CPU's instruction set are where two machines' results
+    part. It does not see a difference in numba's code generation alone. Computed once per process (it sets
+    torch's thread count for a moment, so :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
+    """
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        i = torch.arange(256 * 64, dtype=torch.float32)
+        a = torch.sin(0.37 * i).reshape(256, 64)
+        b = torch.cos(0.11 * i[: 64 * 48]).reshape(64, 48)
+        y = a @ b
+        parts = (y, torch.tanh(y), torch.exp(-y.abs()), torch.sigmoid(y), torch.nn.functional.linear(a, b.T))
+        digest = hashlib.sha256(b"".join(t.contiguous().numpy().tobytes() for t in parts)).hexdigest()
+    finally:
+        torch.set_num_threads(threads)
+    return digest[:16]

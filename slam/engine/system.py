@@ -32,7 +32,7 @@ from slam.engine.map_worker import MapJob, MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
 from slam.engine.rng import rng_state, set_rng_state
-from slam.engine.runtime import keep_freed_memory, release_freed_memory, set_threads
+from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import mapping_due
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, live_ate
@@ -62,6 +62,7 @@ class SLAM:
         self.device = torch.device(device)
         self.indices = frame_indices(len(dataset), cfg)
         set_threads(cfg.threads)
+        float_fingerprint()  # taken now, before the mapper's thread runs: metrics.json records it
         if cfg.keep_freed_memory:
             keep_freed_memory()
         torch.manual_seed(cfg.seed)

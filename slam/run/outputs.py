@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from slam.files import atomic_write_text, replacing
-from slam.engine.runtime import cpu_name
+from slam.engine.runtime import cpu_name, float_fingerprint
 from slam.model.scene import parameter_counts
 
 log = logging.getLogger("slam")
@@ -52,6 +52,7 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
         "parameters": parameter_counts(run.scene),
         "device": str(run.device),
         "cpu": cpu_name(),
+        "float_fingerprint": float_fingerprint(),
         "threads": cfg.threads,
         "version": tdfields.__version__,
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

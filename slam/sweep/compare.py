@@ -9,7 +9,9 @@ Inputs are the files the project's sweeps write: ``slam_compare.json`` (``benchm
 folder name, representation, backend) and compared on ATE RMSE in cm:
 
 * every seed in both: a **paired** comparison, ``d_s = B_s - A_s``, mean ± ``t * sd(d) / sqrt(n)`` (a run is
-  deterministic for its seed, so identical code gives ``d = 0`` exactly);
+  deterministic for its seed, so identical code gives ``d = 0`` exactly) -- on one machine only: where both files
+  carry a float fingerprint (:func:`slam.engine.runtime.float_fingerprint`, in ``slam_compare.json``'s stamp) and
+  they differ, seed ``s`` is not the same run on both sides, and the comparison is unpaired;
 * otherwise **Welch**'s: ``mean(B) - mean(A)`` ± ``t * sqrt(s_A^2 / n_A + s_B^2 / n_B)`` with Welch-Satterthwaite
   degrees of freedom;
 
@@ -89,6 +91,20 @@ def load_runs(path: str | Path) -> dict[tuple, dict[int, float]]:
     return out
 
 
+def load_fingerprint(path: str | Path) -> str | None:
+    """The float fingerprint of the machine a result file's runs were made on (``stamp.float_fingerprint`` of a
+    ``slam_compare.json``, else the runs' own, from their ``metrics.json``), None where none was recorded;
+    ``"mixed: ..."`` when the runs of one file came from machines that round differently."""
+    data = json.loads(_source(path).read_text())
+    if not isinstance(data, dict):
+        return None
+    stamp = data.get("stamp") if isinstance(data.get("stamp"), dict) else {}
+    if stamp.get("float_fingerprint"):
+        return stamp["float_fingerprint"]
+    found = {r.get("float_fingerprint") for r in data.get("runs") or [] if isinstance(r, dict)} - {None}
+    return None if not found else (found.pop() if len(found) == 1 else "mixed: " + " ".join(sorted(found)))
+
+
 def _t95(df: float) -> float:
     from scipy.stats import t
 
@@ -121,9 +137,11 @@ class Difference:
         return statistics.fmean(self.b)
 
 
-def compare_values(a: dict[int, float], b: dict[int, float]) -> tuple[str, float, float | None, float | None]:
-    """``(method, diff, half_width, sd)`` of B - A for one configuration's per-seed values (see the module)."""
-    if set(a) == set(b) and len(a) >= 2:
+def compare_values(a: dict[int, float], b: dict[int, float],
+                   pair: bool = True) -> tuple[str, float, float | None, float | None]:
+    """``(method, diff, half_width, sd)`` of B - A for one configuration's per-seed values (see the module);
+    ``pair=False``: unpaired even with the same seeds (runs from two machines)."""
+    if pair and set(a) == set(b) and len(a) >= 2:
         d = [b[s] - a[s] for s in sorted(a)]
         sd = statistics.stdev(d)
         return "paired", statistics.fmean(d), _t95(len(d) - 1) * sd / math.sqrt(len(d)), sd
@@ -167,6 +185,8 @@ def compare(a_path: str | Path, b_path: str | Path | None = None,
     """
     b_path = a_path if b_path is None else b_path
     a, b = load_runs(a_path), load_runs(b_path)
+    fa, fb = load_fingerprint(a_path), load_fingerprint(b_path)
+    pair = not (fa and fb and fa != fb)
     if representations is None:
         pairs = [(k, k, k[1]) for k in a if k in b]
     else:
@@ -178,7 +198,9 @@ def compare(a_path: str | Path, b_path: str | Path | None = None,
                              f"{sorted(set(a))}, B has {sorted(set(b))}")
     out = []
     for ka, kb, label in pairs:
-        method, diff, hw, sd = compare_values(a[ka], b[kb])
+        method, diff, hw, sd = compare_values(a[ka], b[kb], pair)
+        if not pair:
+            method = "welch, two machines"
         if method == "paired" and all(a[ka][k] == b[kb][k] for k in a[ka]):
             verdict, needed = "identical", None  # every seed equal: the same runs, not an unresolved difference
         elif hw is None:
@@ -192,9 +214,21 @@ def compare(a_path: str | Path, b_path: str | Path | None = None,
     return out
 
 
-def markdown(diffs: list[Difference], a_label: str, b_label: str) -> str:
-    """The comparison as a markdown table (ATE RMSE cm; B - A with its 95 % interval)."""
+def machines_note(a_path: str | Path, b_path: str | Path) -> str:
+    """One line on whether A's and B's runs can be paired by seed (see the module), empty when both carry the
+    same fingerprint."""
+    fa, fb = load_fingerprint(a_path), load_fingerprint(b_path)
+    if fa and fb:
+        return "" if fa == fb else (f"A and B ran on machines that round differently (float fingerprints {fa} / {fb}): "
+                                    "a seed is not the same run on both, so the comparison is unpaired (Welch's).")
+    return ("A or B records no float fingerprint: pairing by seed assumes both ran on one machine (a seed repeats "
+            "a run exactly only there).")
+
+
+def markdown(diffs: list[Difference], a_label: str, b_label: str, note: str = "") -> str:
+    """The comparison as a markdown table (ATE RMSE cm; B - A with its 95 % interval); ``note``: a line above it."""
     lines = [f"A = `{a_label}`, B = `{b_label}`; ATE RMSE in cm, B - A with its 95 % interval (Student t).", "",
+             *([note, ""] if note else []),
              "| configuration | representation | seeds A / B | A mean | B mean | B - A | method | verdict |",
              "|---|---|---|---|---|---|---|---|"]
     for d in diffs:

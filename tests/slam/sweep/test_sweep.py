@@ -215,6 +215,9 @@ def test_interrupted_run_goes_on_from_its_checkpoint(tiny_seq, tmp_path):
     assert "1 interrupted runs go on from their checkpoints" in logs
     assert rec["status"] == "ok" and rec["resumed_from"] == 2 and rec["num_frames"] == 4
     assert rec["threads"] == 1  # the run's own config: what it computes does not depend on when it was resumed
+    from slam.engine.runtime import float_fingerprint
+
+    assert rec["float_fingerprint"] == float_fingerprint()  # which machine's rounding its seed repeats on
     assert not json.loads((Path(spec.run_dir) / "metrics.json").read_text()).get("partial")
 
 

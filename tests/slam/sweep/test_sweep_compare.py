@@ -144,3 +144,39 @@ def test_issue_9_fast_window_gap_between_lrslam_and_eslam_is_inside_the_seeds_sp
     assert diffs[fast].verdict == "unresolved" and 0 < diffs[fast].diff < diffs[fast].half_width
     before = {d.config: d for d in compare(RESULTS / "accuracy_final", representations=("eslam", "lrslam"))}
     assert before[fast].verdict == "B higher"  # e2051a7: lrslam 0.6 cm behind, resolved
+
+
+def _stamped(path: Path, fingerprint: str | None) -> Path:
+    data = json.loads((path / "slam_compare.json").read_text())
+    data["stamp"] = {"float_fingerprint": fingerprint} if fingerprint else {}
+    (path / "slam_compare.json").write_text(json.dumps(data))
+    return path
+
+
+def test_runs_from_machines_that_round_differently_are_not_paired(tmp_path, capsys):
+    a_vals = {"lrslam": {0: 2.0, 1: 2.4, 2: 2.1, 3: 2.3}}
+    b_vals = {"lrslam": {0: 2.1, 1: 2.6, 2: 2.2, 3: 2.6}}
+    a = _stamped(_slam_compare(tmp_path / "a", a_vals), "aaaa")
+    same = _stamped(_slam_compare(tmp_path / "same", b_vals), "aaaa")
+    other = _stamped(_slam_compare(tmp_path / "other", b_vals), "bbbb")
+    (d,) = compare(a, same)
+    assert d.method == "paired"
+    (d,) = compare(a, other)  # the same seeds, but seed s is not the same run on both machines
+    assert d.method == "welch, two machines"
+    assert (d.diff, d.half_width) == pytest.approx(compare_values(a_vals["lrslam"], b_vals["lrslam"], pair=False)[1:3])
+    assert main(["compare", str(a), str(other)]) == 0
+    assert "machines that round differently (float fingerprints aaaa / bbbb)" in capsys.readouterr().out
+    unstamped = _stamped(_slam_compare(tmp_path / "none", b_vals), None)
+    (d,) = compare(a, unstamped)  # nothing recorded: paired as before, and said so
+    assert d.method == "paired"
+    assert main(["compare", str(a), str(unstamped)]) == 0
+    assert "records no float fingerprint" in capsys.readouterr().out
+
+
+def test_the_fingerprint_is_stable_in_a_process():
+    from slam.engine.runtime import float_fingerprint
+
+    f = float_fingerprint()
+    assert len(f) == 16 and int(f, 16) >= 0
+    float_fingerprint.cache_clear()
+    assert float_fingerprint() == f  # recomputed: the same digits
