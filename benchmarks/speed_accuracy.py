@@ -4,8 +4,8 @@ sweep`` folders' ``summary.json``).
 
     python benchmarks/speed_accuracy.py --breakdown benchmarks/results/frame_breakdown/frame_breakdown.json \\
         --data tum_fr1_rpy_0_124 --out benchmarks/results/frame_breakdown \\
-        --accuracy "now=benchmarks/results/resume_identity/slam_compare.json" \\
-        --accuracy "now, mapping by need=benchmarks/results/mapping_by_need/slam_compare.json"
+        --accuracy "now=benchmarks/results/adam_baseline/slam_compare.json" \\
+        --accuracy "now, mapping by need=benchmarks/results/mapping_by_need_same_machine/slam_compare.json"
 
 Each ``--accuracy NAME=FILE`` pairs a breakdown variant with the seeds' ATE of the runs in FILE whose data folder
 ends with ``--data``. Writes ``speed_accuracy.json`` (every point: median frame time, the per-seed ATE, mean and
