@@ -97,7 +97,7 @@ def cpu_name() -> str:
 @functools.cache
 def float_fingerprint() -> str:
     """16 hex digits that differ between machines whose float32 arithmetic rounds differently, for stamping seeded
-    runs: a seed repeats a run exactly only where this agrees (docs/slam.md, "Pair runs only from one machine").
+    runs: a seed repeats a run exactly only where this agrees (docs/slam.md says what went wrong without it).
 
     The sha256 of a fixed matrix product and of tanh / exp / sigmoid over its result, at one torch thread (the
     runs' count): BLAS and vector-math kernels chosen for the CPU's instruction set are where two machines' results
