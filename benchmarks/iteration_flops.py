@@ -77,35 +77,15 @@ def counting():
 
 
 def measure(preset: str, data: str, representation: str, warm_frames: int, repeats: int, overrides) -> dict:
-    import torch
     from torch.utils.flop_counter import FlopCounterMode
 
-    from slam.config import load_config
-    from slam.engine.mapper import map_frame
-    from slam.engine.setup import load_data
-    from slam.engine.system import SLAM
-    from slam.engine.tracker import track_frame
+    from profile_slam import warm_calls
 
-    cfg = load_config(preset, [f"representation={representation}", f"data.max_frames={warm_frames + 1}",
-                               "parallel=false", *([f"data.path={data}"] if data else []), *overrides])
-    ds = load_data(cfg)
-    system = SLAM(cfg, ds, "cpu")
-    for k in range(warm_frames):
-        system.step(k)
-    k = warm_frames
-    frame = ds[system.indices[k]]
-    color = torch.as_tensor(frame.color, dtype=torch.float32)
-    depth = torch.as_tensor(frame.depth, dtype=torch.float32)
-    init = system.state.est[-1]
-    saved = {name: t.clone() for name, t in system.scene.state_dict().items()}
+    _, track_call, mapping = warm_calls(preset, [f"representation={representation}", "parallel=false",
+                                                   *([f"data.path={data}"] if data else []), *overrides], warm_frames)
 
     def track():
-        return track_frame(system.scene, color, depth, system.intr, init, cfg, system.gen).iters
-
-    def mapping():
-        map_frame(system.scene, k, color, depth, init, system.intr, system.keyframes, cfg, system.gen)
-        system.scene.load_state_dict(saved)  # every repeat maps the same map
-        return cfg.mapping.iters
+        return track_call().iters
 
     rows = {}
     for name, fn in (("tracking", track), ("mapping", mapping)):

@@ -75,7 +75,10 @@ def stage_timers():
             setattr(owner, name, original)
 
 
-def profile_one(preset: str, representation: str, warm_frames: int, repeats: int, overrides: list[str]) -> dict:
+def warm_calls(preset: str, overrides: list[str], warm_frames: int):
+    """``(cfg, track, mapping)``: a SLAM that has run its first ``warm_frames`` frames, and two callables that run
+    one whole tracking call (returning its :class:`TrackResult`) and one whole mapping call (returning its
+    iteration count; the map restored afterwards, so every repeat maps the same map) on the next frame."""
     import torch
 
     from slam.config import load_config
@@ -84,8 +87,7 @@ def profile_one(preset: str, representation: str, warm_frames: int, repeats: int
     from slam.engine.system import SLAM
     from slam.engine.tracker import track_frame
 
-    cfg = load_config(preset, [f"representation={representation}", f"data.max_frames={warm_frames + 1}",
-                               *overrides])
+    cfg = load_config(preset, [f"data.max_frames={warm_frames + 1}", *overrides])
     ds = load_data(cfg)
     system = SLAM(cfg, ds, "cpu")
     for k in range(warm_frames):
@@ -98,12 +100,20 @@ def profile_one(preset: str, representation: str, warm_frames: int, repeats: int
     saved = {name: t.clone() for name, t in system.scene.state_dict().items()}
 
     def track():
-        track_frame(system.scene, color, depth, system.intr, init, cfg, system.gen)
+        return track_frame(system.scene, color, depth, system.intr, init, cfg, system.gen)
 
     def mapping():
         map_frame(system.scene, k, color, depth, init, system.intr, system.keyframes, cfg, system.gen)
-        system.scene.load_state_dict(saved)  # every repeat maps the same map
+        system.scene.load_state_dict(saved)
+        return cfg.mapping.iters
 
+    return cfg, track, mapping
+
+
+def profile_one(preset: str, representation: str, warm_frames: int, repeats: int, overrides: list[str]) -> dict:
+    import torch
+
+    cfg, track, mapping = warm_calls(preset, [f"representation={representation}", *overrides], warm_frames)
     samples = cfg.rendering.n_stratified + cfg.rendering.n_importance
     out = {"preset": preset, "representation": representation, "threads": torch.get_num_threads(),
            "tracking_points": cfg.tracking.pixels * samples, "mapping_points": cfg.mapping.pixels * samples}
