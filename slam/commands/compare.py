@@ -19,10 +19,12 @@ def register(subparsers) -> None:
             "sweep's summary.json, or the folders holding them) configuration by configuration: mean ATE RMSE "
             "of A and B and B - A with its 95 % interval, paired by seed when both have the same seeds and ran "
             "on one machine (Welch's otherwise: a seed repeats a run exactly only on a machine that rounds the "
-            "same, recorded as float_fingerprint in slam_compare.json and metrics.json). A difference whose interval contains 0 is 'unresolved', with the number of seeds a "
-            "difference of that size would need; paired runs equal on every seed are 'identical'. Use it before keeping a setting: a 3-seed screen can point "
-            "the other way from 5 seeds. With --representations REF CAND it compares two representations on the "
-            "same configurations instead (B defaults to A): is CAND as accurate as REF at the same budget?"
+            "same, recorded as float_fingerprint in slam_compare.json and metrics.json). A difference whose "
+            "interval contains 0 is 'unresolved', with the number of seeds a difference of that size would "
+            "need; paired runs equal on every seed are 'identical'. Use it before keeping a setting: a 3-seed "
+            "screen can point the other way from 5 seeds. With --representations REF CAND it compares two "
+            "representations on the same configurations instead (B defaults to A): is CAND as accurate as REF at "
+            "the same budget?"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
@@ -42,13 +44,13 @@ def register(subparsers) -> None:
 
 
 def main(args) -> int:
-    from slam.sweep.compare import compare, machines_note, markdown
+    from slam.sweep.compare import compare, machines, markdown
 
     if args.b is None and args.representations is None:
         raise SlamInputError("give B, or --representations REF CAND to compare two representations within A")
     b = args.a if args.b is None else args.b
     diffs = compare(args.a, b, tuple(args.representations) if args.representations else None)
-    note = machines_note(args.a, b)
+    _, note = machines(args.a, b)
     print(markdown(diffs, args.a, b, note), end="")
     if args.json:
         out = Path(args.json)

@@ -185,8 +185,7 @@ def compare(a_path: str | Path, b_path: str | Path | None = None,
     """
     b_path = a_path if b_path is None else b_path
     a, b = load_runs(a_path), load_runs(b_path)
-    fa, fb = load_fingerprint(a_path), load_fingerprint(b_path)
-    pair = not (fa and fb and fa != fb)
+    pair, _ = machines(a_path, b_path)
     if representations is None:
         pairs = [(k, k, k[1]) for k in a if k in b]
     else:
@@ -214,15 +213,19 @@ def compare(a_path: str | Path, b_path: str | Path | None = None,
     return out
 
 
-def machines_note(a_path: str | Path, b_path: str | Path) -> str:
-    """One line on whether A's and B's runs can be paired by seed (see the module), empty when both carry the
-    same fingerprint."""
+def machines(a_path: str | Path, b_path: str | Path) -> tuple[bool, str]:
+    """``(pair, note)``: whether A's and B's runs may be paired by seed (not when both carry float fingerprints
+    and they differ; see the module), and one line saying why, empty when both carry the same fingerprint or A and
+    B are the same file."""
+    if Path(a_path) == Path(b_path):
+        return True, ""
     fa, fb = load_fingerprint(a_path), load_fingerprint(b_path)
     if fa and fb:
-        return "" if fa == fb else (f"A and B ran on machines that round differently (float fingerprints {fa} / {fb}): "
-                                    "a seed is not the same run on both, so the comparison is unpaired (Welch's).")
-    return ("A or B records no float fingerprint: pairing by seed assumes both ran on one machine (a seed repeats "
-            "a run exactly only there).")
+        return fa == fb, "" if fa == fb else (
+            f"A and B ran on machines that round differently (float fingerprints {fa} / {fb}): a seed is not the "
+            "same run on both, so the comparison is unpaired (Welch's).")
+    return True, ("A or B records no float fingerprint: pairing by seed assumes both ran on one machine (a seed "
+                  "repeats a run exactly only there).")
 
 
 def markdown(diffs: list[Difference], a_label: str, b_label: str, note: str = "") -> str:

@@ -180,3 +180,9 @@ def test_the_fingerprint_is_stable_in_a_process():
     assert len(f) == 16 and int(f, 16) >= 0
     float_fingerprint.cache_clear()
     assert float_fingerprint() == f  # recomputed: the same digits
+
+
+def test_a_file_compared_with_itself_needs_no_machine_note(tmp_path, capsys):
+    a = _slam_compare(tmp_path / "a", {"eslam": {0: 2.2, 1: 2.3}, "lrslam": {0: 2.1, 1: 2.4}})
+    assert main(["compare", str(a), "--representations", "eslam", "lrslam"]) == 0
+    assert "fingerprint" not in capsys.readouterr().out  # one file: one machine by construction
