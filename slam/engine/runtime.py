@@ -101,8 +101,9 @@ def float_fingerprint() -> str:
 
     The sha256 of a fixed matrix product (through ``matmul`` and through ``linear``, the decoders' path) and of
     tanh / exp / sigmoid over its result, at one torch thread (the runs' count): BLAS and vector-math kernels chosen
-    for the CPU's instruction set are where two machines' results part. It does not see a difference in numba's code generation alone. Computed once per process (it sets
-    torch's thread count for a moment, so :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
+    for the CPU's instruction set are where two machines' results part. It does not see a difference in numba's code
+    generation alone. Computed once per process (it sets torch's thread count for a moment, so
+    :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
     """
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
