@@ -56,7 +56,8 @@ def run(name: str, seed: int, frames: int, mesh_resolution: float, out: Path) ->
             "completion_ratio_pct": None if rec.get("completion_ratio") is None else 100 * rec["completion_ratio"],
             "fpt_s": m["fpt_s"], "growths": sum(str(e.get("event", "")).startswith("scene box grown")
                                                 for e in m.get("events", [])),
-            "events": len(m.get("events", [])), "parameters": m["parameters"]["total"]}
+            "events": len(m.get("events", [])), "parameters": m["parameters"]["total"],
+            "float_fingerprint": m.get("float_fingerprint")}  # seeds spread over sittings may span machines
 
 
 def series(out: Path, folder: str) -> list[dict]:
@@ -181,7 +182,7 @@ def main(argv=None) -> int:
     st = stamp()
     (out / "walk_study.json").write_text(json.dumps({"stamp": st, "frames": args.frames, "runs": runs,
                                                      "summary": summ, "series": curves}, indent=1))
-    if not args.from_partial:
+    if not (args.from_partial or args.resume):  # a --continue sitting leaves the next one its runs
         partial.unlink()
     plot(curves, out / "walk_study.png")
     text = table(summ, curves, st, args.frames, args.seeds)

@@ -1,6 +1,6 @@
 """benchmarks/walk_study.py's bookkeeping, with its SLAM runs replaced by records (a whole walk run takes half an
-hour): ``--continue`` keeps what a stopped sitting finished and runs only the missing (config, seed) pairs, refuses
-a partial file of another length, and the curves of seed 0 come from the records, not the run folders."""
+hour): ``--continue`` keeps what a stopped or finished sitting ran and runs only the missing (config, seed) pairs,
+refuses a partial file of another length, and the curves of seed 0 come from the records, not the run folders."""
 
 import importlib.util
 import json
@@ -63,7 +63,12 @@ def test_continue_runs_only_what_is_missing(study, tmp_path, monkeypatch):
     ate = {s["config"]: s["ate_rmse_cm"]["values"] for s in result["summary"]}
     assert ate == {"lrslam": [2.0, 3.0], "eslam": [2.0, 3.0]}
     assert result["series"]["eslam"][0]["from"] == "runs/eslam_s0"
-    assert not (tmp_path / "walk_study.partial.json").exists()
+    # a finished sitting keeps its runs for the next one: one more seed runs only that seed
+    calls.clear()
+    assert module.main(["--frames", "20", "--seeds", "3", "--configs", "lrslam", "--out", str(tmp_path),
+                        "--continue"]) == 0
+    assert calls == [("lrslam", 2)]
+    assert len(json.loads((tmp_path / "walk_study.json").read_text())["runs"]) == 5
 
 
 def test_continue_refuses_another_length(study, tmp_path):
