@@ -149,7 +149,8 @@ class SLAM:
         st = self.state
         if not frame.ok:
             st.bad_frames += 1
-            pose, what = (matrix_to_pose(self.c2w0), "initial pose") if k == 0 else predict(st.est, self.cfg.tracking.init)
+            pose, what = ((matrix_to_pose(self.c2w0), "initial pose") if k == 0
+                          else predict(st.est, st.trusted, self.cfg.tracking.init))
             self._event(k, f"unreadable frame skipped, {what} used: {frame.error}", bad_frame=True)
             return pose, False, False
         if k == 0:
@@ -158,7 +159,7 @@ class SLAM:
             if not frame.has_depth:
                 self._event(k, "no valid depth: the map starts at the first frame that has depth")
             return matrix_to_pose(self.c2w0), False, True
-        pred, what = predict(st.est, self.cfg.tracking.init)
+        pred, what = predict(st.est, st.trusted, self.cfg.tracking.init)
         if not frame.has_depth or not st.initialized:
             reason = "no valid depth" if not frame.has_depth else "no map yet (no earlier frame had depth)"
             self._event(k, f"{reason}: not tracked, {what} used")

@@ -21,10 +21,16 @@ from slam.engine.state import RunState
 from slam.engine.tracker import TrackResult, track_frame
 
 
-def predict(est: list, init: str) -> tuple[torch.Tensor, str]:
-    """The pose ``[7]`` the next frame starts from before tracking, and what it is: constant velocity over the
-    last two poses of ``est`` (unless ``tracking.init`` is ``previous``), else the previous pose."""
-    if init != "previous" and len(est) >= 2:
+def predict(est: list, trusted: list, init: str) -> tuple[torch.Tensor, str]:
+    """The pose ``[7]`` the next frame starts from before tracking, and what it is.
+
+    Constant velocity over the last two poses of ``est`` (unless ``tracking.init`` is ``previous``) when both are
+    trusted (``trusted`` holds a flag per pose), else the previous pose. A velocity is a measurement only between
+    two trusted poses: across an untrusted one (a lost result, a prediction) or a jump back to a trusted pose
+    (relocalisation, recovery from the last trusted pose) the difference of the last two poses is a correction,
+    and extrapolating it frame after frame ran a fixed-box walk out to 28 km while it was lost (docs/slam.md,
+    "Robustness")."""
+    if init != "previous" and len(est) >= 2 and trusted[-1] and trusted[-2]:
         return constant_velocity(est[-1], est[-2]), "constant-velocity pose"
     return est[-1].clone(), "previous pose"
 
