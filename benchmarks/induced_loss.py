@@ -29,14 +29,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def blacked_out_copy(src: Path, dst: Path, first: int, stop: int) -> list[str]:
+def blacked_out_copy(src: Path, dst: Path, first: int, stop: int, frames=None, depth_only: bool = False) -> list[str]:
     """``src`` (a TUM folder with associations.txt) linked into ``dst`` with the associated pairs
-    ``first..stop-1`` replaced by all-zero colour and depth PNGs. Returns the replaced file names."""
+    ``first..stop-1`` (or the positions ``frames``) replaced by all-zero colour and depth PNGs (with
+    ``depth_only``, depth only: the colour is kept). Returns the replaced file names."""
     import imageio.v3 as iio
 
     pairs = [ln.split() for ln in (src / "associations.txt").read_text().splitlines()
              if ln.strip() and not ln.startswith("#")]
-    black = {pairs[i][1] for i in range(first, stop)} | {pairs[i][3] for i in range(first, stop)}
+    frames = range(first, stop) if frames is None else frames
+    black = {pairs[i][3] for i in frames} | (set() if depth_only else {pairs[i][1] for i in frames})
     dst.mkdir(parents=True)
     for name in os.listdir(src):
         if name not in ("rgb", "depth"):

@@ -132,6 +132,10 @@ class TrackingConfig:
     # (0: never)
     relocalize_after: int = num(5, lo=0, hi=BIG)
     relocalize_keyframes: int = num(3, lo=1, hi=100)
+    # ours (slam/engine/tracker.py, track_on_color): a frame without valid depth is tracked on its colour against
+    # the map's rendered depth (color), or keeps the motion model's prediction (predict, as before); either way it
+    # is not mapped
+    without_depth: str = choice("color", ("color", "predict"))
     weights: LossWeights = field(default_factory=TRACKING_WEIGHTS)
     # ours (slam/engine/gauss_newton.py): adam is ESLAM's tracker (iters, lr_r, lr_t, patience apply); gauss_newton
     # solves the pose by Levenberg-Marquardt on one set of pixels: at most gn_iters loss evaluations, the damping

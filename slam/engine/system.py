@@ -7,8 +7,9 @@ submit for mapping. Writing a run's outputs and checkpoints lives in :mod:`slam.
 Frames are read ahead on a background thread (:mod:`slam.engine.frames`); mapping runs inline (sequential, ESLAM's
 effective schedule) or beside the tracker (``parallel``), both deterministic (:mod:`slam.engine.map_worker`).
 
-Robustness: a frame that cannot be read, or has no valid depth, is not tracked or mapped (its pose is the
-prediction: constant velocity, or the previous pose); a tracking result that is not finite falls back to the
+Robustness: a frame that cannot be read is not tracked or mapped (its pose is the prediction: constant velocity
+between two trusted poses, or the previous pose); a frame without valid depth is tracked on its colour and not
+mapped (``tracking.without_depth``); a tracking result that is not finite falls back to the
 prediction and the frame is not mapped; a mapping step whose loss or gradient is not finite is skipped, so the map
 is never written with NaNs. Each such event is logged and listed in ``metrics.json``.
 """
@@ -36,7 +37,7 @@ from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_fr
 from slam.engine.schedule import mapping_due
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, live_ate
-from slam.engine.tracking import Timeline, predict, track_with_recovery
+from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
 from slam.engine.tracking_guard import TrackingGuard
 from slam.engine.view import KeyframeSnapshot, RunView
 from slam.model.growth import fit_to_state
@@ -160,11 +161,18 @@ class SLAM:
                 self._event(k, "no valid depth: the map starts at the first frame that has depth")
             return matrix_to_pose(self.c2w0), False, True
         pred, what = predict(st.est, st.trusted, self.cfg.tracking.init)
-        if not frame.has_depth or not st.initialized:
+        if not st.initialized:
             reason = "no valid depth" if not frame.has_depth else "no map yet (no earlier frame had depth)"
             self._event(k, f"{reason}: not tracked, {what} used")
             return pred, False, frame.has_depth
         inp = TrackInput(self.mapper.track_scene, frame.color, frame.depth, self.intr, self.cfg, self.gen, self.guard)
+        if not frame.has_depth:
+            res, pose, happened = track_without_depth(k, inp, st, pred, what, self.timeline)
+            self._event(k, f"no valid depth: {happened}", color_tracked=bool(res is not None and res.ok))
+            if res is not None:
+                st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
+                                    "inliers": res.inliers, "trusted": False})
+            return pose, res is not None, False
         res, trusted = track_with_recovery(k, inp, st, pred, what, self.timeline)
         st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
                             "inliers": res.inliers, "trusted": trusted})

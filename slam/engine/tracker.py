@@ -16,15 +16,15 @@ import torch
 
 import tdfields
 from slam.config import Config
-from slam.core.losses import total_loss, tracking_inliers
+from slam.core.losses import color_loss, total_loss, tracking_inliers
 from slam.core.optim import VectorAdam
 from slam.core.pose import normalize_pose, pose_to_matrix
-from slam.core.camera import sample_pixels
-from slam.core.rendering import render_pixels
+from slam.core.camera import pixel_directions, sample_pixels
+from slam.core.rendering import camera_rays, ray_box_exit, render_pixels, render_rays
 from slam.engine.gauss_newton import track_frame_gn
 from slam.engine.state import TrackResult
 
-__all__ = ["TrackResult", "evaluate_pose", "track_frame"]
+__all__ = ["TrackResult", "evaluate_pose", "track_frame", "track_on_color"]
 
 
 def _loss_at(scene, color, depth, intrinsics, c2w, cfg: Config, v, u, generator, perturb: bool):
@@ -129,3 +129,88 @@ def evaluate_pose(scene, color, depth, intrinsics, pose: torch.Tensor, cfg: Conf
     if loss is None or not bool(torch.isfinite(loss)):
         return float("inf"), 0.0
     return float(loss), inliers
+
+
+# a ray "sees the map" when its compositing weights sum past this: it ends on a surface inside the box, so its
+# rendered depth stands in for the missing sensor depth
+SEEN = 0.5
+
+
+def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tensor, cfg: Config,
+                   generator: torch.Generator, iters: int | None = None) -> tuple[TrackResult, float]:
+    """Track a frame that has no valid depth on its colour alone (ours; docs/slam.md, "Robustness").
+
+    One set of ``tracking.pixels`` pixels is drawn; the map is rendered at ``init_pose`` without jitter, and the
+    rays that see a surface (weights summing past 0.5) take the rendered depth as their depth. Adam (as in
+    :func:`track_frame`, ``tracking.iters`` steps at ``tracking.lr_r``, whatever ``tracking.optimizer`` says) then
+    turns the camera to lower the colour error of those rays, sampled around that depth; the translation stays
+    ``init_pose``'s. The best-loss pose is returned.
+
+    Args:
+        scene: :class:`slam.model.scene.SceneModel` (frozen here).
+        color: ``[H, W, 3]`` RGB in [0, 1] on the scene's device; intrinsics: ``slam.data.Intrinsics``.
+        init_pose: ``[7]`` (q, t) starting pose (the motion model's prediction).
+
+    Returns:
+        ``(result, loss at init_pose)``: both losses are the mean squared colour error of the same rays without
+        jitter, so ``result.loss < loss at init_pose`` says colour moved the pose somewhere better;
+        ``result.inliers`` is the share of the pixels that see the map.
+    """
+    tc = cfg.tracking
+    iters = tc.iters if iters is None else iters
+    device, (H, W) = color.device, color.shape[:2]
+    init_pose = init_pose.to(device)
+    with tdfields.frozen(scene):
+        v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
+        v, u = v.to(device), u.to(device)
+        with torch.no_grad():
+            dirs_cam = pixel_directions(u.to(color.dtype), v.to(color.dtype), intrinsics.fx, intrinsics.fy,
+                                        intrinsics.cx, intrinsics.cy)
+            origins, dirs = camera_rays(pose_to_matrix(init_pose), dirs_cam)
+            ahead = ray_box_exit(origins, dirs, scene.aabb) > 0
+            if int(ahead.sum()) < 10:
+                return TrackResult(init_pose.cpu(), float("nan"), False, "the scene box is behind the camera", 0,
+                                   0.0), float("nan")
+            r = cfg.rendering
+            out = render_rays(origins[ahead], dirs[ahead], origins.new_zeros(int(ahead.sum())), scene.sdf, scene.rgb,
+                              scene.beta, cfg.scene.truncation, r.n_stratified, r.n_importance, scene.aabb, False,
+                              None, r.color_cutoff)
+            seen = out.weights.sum(-1) > SEEN
+        if int(seen.sum()) < 10:
+            return TrackResult(init_pose.cpu(), float("nan"), False, "too few rays see the map", 0, 0.0), float("nan")
+        v, u, depth = v[ahead][seen], u[ahead][seen], out.depth[seen]
+        share = float(seen.sum()) / tc.pixels
+
+        def loss_at(pose, perturb):
+            rendered = render_pixels(scene, u=u, v=v, depth=depth, color=color[v, u], c2w=pose_to_matrix(pose),
+                                     intrinsics=intrinsics, rendering=cfg.rendering, truncation=cfg.scene.truncation,
+                                     perturb=perturb, generator=generator, depth_required=True, min_rays=10)
+            return None if rendered is None else color_loss(rendered[0].color, rendered[2])
+
+        with torch.no_grad():
+            start = loss_at(init_pose, False)
+        start = float("nan") if start is None else float(start)
+        pose = init_pose.clone().requires_grad_(True)
+        # the rotation only: one frame's colour pins where the camera looks, but barely how far it moved (the
+        # parallax of one frame's motion is small), and moving the translation too doubled the error of dropped
+        # frames' motion on the fast dev window (docs/slam.md, "Robustness")
+        lrs = torch.tensor([tc.lr_r] * 4 + [0.0] * 3, dtype=pose.dtype, device=device)
+        opt = VectorAdam(pose, lrs, betas=(0.5, 0.999))
+        best_loss, best_pose, message, it = float("inf"), None, "", 0
+        for it in range(1, iters + 1):
+            loss = loss_at(pose, cfg.rendering.perturb)
+            if loss is None or not torch.isfinite(loss):
+                message = "too few rays inside the scene box" if loss is None else "non-finite colour loss"
+                break
+            if float(loss.detach()) < best_loss:
+                best_loss, best_pose = float(loss.detach()), pose.detach().clone()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        if best_pose is None or not bool(torch.isfinite(best_pose).all()):
+            return TrackResult(init_pose.cpu(), float("nan"), False, message or "no finite pose", it, share), start
+        best_pose = normalize_pose(best_pose)
+        with torch.no_grad():  # the same rays as `start`, without jitter: a fair comparison
+            final = loss_at(best_pose, False)
+    final = float("nan") if final is None else float(final)
+    return TrackResult(best_pose.cpu(), final, True, message, it, share), start

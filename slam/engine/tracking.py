@@ -1,6 +1,7 @@
 """Tracking one frame the way the loop does: predict, start from depth ICP, track, check, recover, relocalise.
 
-:func:`predict` gives the motion model's pose; :func:`track_with_recovery` tracks from the ICP start
+:func:`predict` gives the motion model's pose; :func:`track_without_depth` tracks a frame without valid depth on
+its colour; :func:`track_with_recovery` tracks from the ICP start
 (:func:`slam.engine.recovery.icp_start`), checks the result with the guard, re-tracks an implausible one
 (:func:`slam.engine.recovery.recover`) and, after ``tracking.relocalize_after`` untrusted frames in a row,
 relocalises against the keyframes (:func:`slam.engine.recovery.relocalise`). It reads and updates only the
@@ -18,7 +19,7 @@ import torch
 from slam.core.pose import constant_velocity
 from slam.engine.recovery import TrackInput, icp_start, recover, relocalise
 from slam.engine.state import RunState
-from slam.engine.tracker import TrackResult, track_frame
+from slam.engine.tracker import TrackResult, track_frame, track_on_color
 
 
 def predict(est: list, trusted: list, init: str) -> tuple[torch.Tensor, str]:
@@ -93,3 +94,39 @@ def _relocalise(inp: TrackInput, run: Timeline, anchor: torch.Tensor, dt: float,
     if best is not None:
         inp.guard.reset(best.loss)
     return best, found
+
+
+# a colour image whose standard deviation is below this has nothing to track on (a sensor that saw nothing)
+MIN_CONTRAST = 1e-3
+
+
+def track_without_depth(k: int, inp: TrackInput, st: RunState, pred: torch.Tensor, what: str,
+                        run: Timeline) -> tuple[TrackResult | None, torch.Tensor, str]:
+    """Track frame position ``k``, which has no valid depth, on its colour from the prediction ``pred``
+    (``tracking.without_depth: color``; :func:`slam.engine.tracker.track_on_color`).
+
+    The colour pose is taken when its colour error (same rays, no jitter) is below the prediction's and the guard's
+    motion checks pass against the last trusted frame; otherwise the prediction stays. Either way the frame stays
+    untrusted (it is not mapped, and the motion model does not take a velocity across it).
+
+    Returns:
+        ``(result or None, pose [7], what happened)`` for the frame's event.
+    """
+    if inp.cfg.tracking.without_depth == "predict":
+        return None, pred, f"not tracked, {what} used"
+    if float(inp.color.std()) < MIN_CONTRAST:
+        return None, pred, f"the colour image has no contrast either: not tracked, {what} used"
+    res, start = track_on_color(inp.scene, inp.color, inp.intr, pred, inp.cfg, inp.gen)
+    if not res.ok:
+        return res, pred, f"colour tracking failed ({res.message}): {what} used"
+    last = st.last_trusted()
+    why = []
+    if not res.loss < start:
+        why.append(f"colour error {res.loss:.3g} not below the {what}'s {start:.3g}")
+    if last >= 0:
+        why += inp.guard.reasons(res.loss, 1.0, st.est[last], res.pose, run.dt(k, last), use_history=False)
+    if why:
+        res.ok = False
+        return res, pred, f"colour tracking not taken ({'; '.join(why)}): {what} used"
+    return res, res.pose, (f"tracked on colour from the {what} (colour error {start:.3g} -> {res.loss:.3g}, "
+                           f"{res.iters} iterations, {100 * res.inliers:.0f} % of the pixels see the map)")

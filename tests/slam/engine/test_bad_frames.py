@@ -83,11 +83,11 @@ def test_too_many_bad_frames_stop_the_run_after_writing_its_outputs(excerpt, tmp
     assert not m.get("partial") and m["num_frames"] == 8 and m["resumed_from"] == 3
 
 
-def _system(tiny_seq, **edit):
+def _system(tiny_seq, overrides=(), **edit):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, *overrides])
     return SLAM(cfg, EditedDataset(load_data(cfg), **edit))
 
 
@@ -104,11 +104,18 @@ def test_frame_0_without_depth_starts_the_map_at_the_first_frame_with_depth(tiny
 
 
 def test_event_text_names_the_prediction_used(tiny_seq):
-    s = _system(tiny_seq, no_depth=[1, 4])
+    s = _system(tiny_seq, no_depth=[1, 4], overrides=["tracking.without_depth=predict"])
     s.run(progress=False)
     texts = {e["frame"]: e["event"] for e in s.state.events}
     assert texts[1] == "no valid depth: not tracked, previous pose used"
     assert texts[4] == "no valid depth: not tracked, constant-velocity pose used"
+    s.close()
+    s = _system(tiny_seq, no_depth=[1, 4])  # tracked on colour from the same predictions (or, if not taken, them)
+    s.run(progress=False)
+    texts = {e["frame"]: e["event"] for e in s.state.events}
+    assert texts[1].startswith("no valid depth: ") and "from the previous pose" in texts[1] or (
+        texts[1].startswith("no valid depth: colour tracking not taken") and "previous pose used" in texts[1]), texts
+    assert "constant-velocity pose" in texts[4] and s.state.trusted[1] is s.state.trusted[4] is False, texts
     s.close()
 
 

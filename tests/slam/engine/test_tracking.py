@@ -1,14 +1,20 @@
 """The motion model (slam/engine/tracking.py, ``predict``): a velocity is taken only between two trusted poses, so
 a lost stretch holds the last pose instead of extrapolating a correction frame after frame (a fixed-box walk ran
-out to 28 km that way)."""
+out to 28 km that way). A frame without depth (``track_without_depth``) is turned by its colour when that lowers
+the colour error and moves the camera plausibly, else it keeps the prediction."""
 
 import torch
 
 from slam.config import load_config
-from slam.core.pose import pose_to_matrix
-from slam.engine.tracking import predict
+from slam.core.pose import pose_to_matrix, rotation_angle
+from slam.core.pose import matrix_to_pose
+from slam.engine.recovery import TrackInput
+from slam.engine.state import RunState
+from slam.engine.tracking import Timeline, predict, track_without_depth
+from slam.engine.tracking_guard import TrackingGuard
 from tests.slam.conftest import EditedDataset
 from tests.slam.engine.test_recovery import FAST
+from tests.slam.engine.test_tracker import ROOM_CFG, Room, room_image, turned
 
 
 def _pose(x):
@@ -70,3 +76,27 @@ def test_a_lost_stretch_after_a_jump_back_holds_the_pose(tiny_seq, monkeypatch):
     held = [e for e in s.state.events if e["frame"] >= 12]
     assert held and all("previous pose used" in e["event"] for e in held), held
     s.close()
+
+
+def test_a_frame_without_depth_is_turned_by_its_colour_only_when_that_is_plausible():
+    color, intr = room_image()
+    pred = matrix_to_pose(turned(1.5, -2.0))  # the truth is the identity: the camera at the origin facing +z
+
+    def track(overrides=(), image=color, last=None):
+        cfg = load_config("synthetic", [*ROOM_CFG, *overrides])
+        st = RunState(est=[last if last is not None else matrix_to_pose(torch.eye(4))], trusted=[True])
+        inp = TrackInput(Room(), image, torch.zeros(image.shape[:2]), intr, cfg, torch.Generator().manual_seed(0),
+                         TrackingGuard(cfg.tracking))
+        run = Timeline(dt=lambda k, j: (k - j) / 30, keyframes=list, frame_of=int, event=None)
+        return track_without_depth(1, inp, st, pred, "constant-velocity pose", run)
+
+    res, pose, what = track()
+    assert res.ok and what.startswith("tracked on colour from the constant-velocity pose"), what
+    assert float(rotation_angle(pose_to_matrix(pose)[:3, :3])) < 0.01  # back to the truth (2.5 degrees off)
+    for overrides, image, last, why in (
+            (["tracking.without_depth=predict"], color, None, "not tracked, constant-velocity pose used"),
+            ((), torch.full_like(color, 0.5), None, "the colour image has no contrast either"),
+            # the last trusted pose is 1 m away: 30 m/s in one frame, whatever colour says
+            ((), color, matrix_to_pose(torch.eye(4)) + torch.tensor([0, 0, 0, 0, 1.0, 0, 0]), "m/s")):
+        res, pose, what = track(overrides, image, last)
+        assert torch.equal(pose, pred) and why in what, what
