@@ -168,10 +168,8 @@ class SLAM:
         inp = TrackInput(self.mapper.track_scene, frame.color, frame.depth, self.intr, self.cfg, self.gen, self.guard)
         if not frame.has_depth:
             res, pose, happened = track_without_depth(k, inp, st, pred, what, self.timeline)
+            # the event carries it; st.tracking (frames.csv's tracking columns) keeps the depth loss's meaning
             self._event(k, f"no valid depth: {happened}", color_tracked=bool(res is not None and res.ok))
-            if res is not None:
-                st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
-                                    "inliers": res.inliers, "trusted": False})
             return pose, res is not None, False
         res, trusted = track_with_recovery(k, inp, st, pred, what, self.timeline)
         st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
