@@ -72,6 +72,15 @@ class TooManyBadFrames(SlamInputError):
     """More than ``data.max_bad_fraction`` of the frames read so far could not be read."""
 
 
+def check_bad_frames(st: RunState, total: int, max_fraction: float) -> None:
+    """Raise :class:`TooManyBadFrames` once more than ``max_fraction`` of the run's ``total`` frames could not be
+    read (``data.max_bad_fraction``)."""
+    if st.bad_frames > max_fraction * total:
+        raise TooManyBadFrames(
+            f"{st.bad_frames} of the first {len(st.est)} frames could not be read, more than "
+            f"data.max_bad_fraction = {max_fraction} of the {total} frames; see the events")
+
+
 def live_ate(est: list, gt: torch.Tensor | None) -> float:
     """ATE RMSE in metres of the poses ``est`` (``[7]`` each) so far against ``gt`` ``[N, 4, 4]`` (its first
     ``len(est)``); NaN before three frames, without ground truth, or when it cannot be computed."""

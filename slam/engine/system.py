@@ -36,7 +36,7 @@ from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import mapping_due
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
-from slam.engine.state import RunState, TooManyBadFrames, live_ate
+from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
 from slam.engine.tracking_guard import TrackingGuard
 from slam.engine.view import KeyframeSnapshot, RunView
@@ -120,13 +120,6 @@ class SLAM:
         self.mapper.wait_idle()
         return list(self.keyframes.frames)
 
-    def _check_bad_frames(self) -> None:
-        n, total = len(self.state.est), len(self.indices)
-        if self.state.bad_frames > self.cfg.data.max_bad_fraction * total:
-            raise TooManyBadFrames(
-                f"{self.state.bad_frames} of the first {n} frames could not be read, more than "
-                f"data.max_bad_fraction = {self.cfg.data.max_bad_fraction} of the {total} frames; see the events")
-
     # ------------------------------------------------------------------------------------------------- a frame
     def step(self, k: int) -> FrameRecord:
         """Process the k-th selected frame (track, then map if scheduled); returns what happened."""
@@ -139,7 +132,7 @@ class SLAM:
         self.state.sizes.append(list(self.size))
         if not self.mapper.parallel:
             self._apply(self.mapper.sync(k + 1))
-        self._check_bad_frames()
+        check_bad_frames(self.state, len(self.indices), self.cfg.data.max_bad_fraction)
         return FrameRecord(k=k, frame=int(self.indices[k]), color=frame.color, depth=frame.depth,
                            pose=pose_to_matrix(self.state.est[-1]), gt=self.gt[k] if self.gt is not None else None,
                            tracked=tracked, mapped=mapped)
@@ -167,10 +160,7 @@ class SLAM:
             return pred, False, frame.has_depth
         inp = TrackInput(self.mapper.track_scene, frame.color, frame.depth, self.intr, self.cfg, self.gen, self.guard)
         if not frame.has_depth:
-            res, pose, happened = track_without_depth(k, inp, st, pred, what, self.timeline)
-            # the event carries it; st.tracking (frames.csv's tracking columns) keeps the depth loss's meaning
-            self._event(k, f"no valid depth: {happened}", color_tracked=bool(res is not None and res.ok))
-            return pose, res is not None, False
+            return (*track_without_depth(k, inp, st, pred, what, self.timeline), False)
         res, trusted = track_with_recovery(k, inp, st, pred, what, self.timeline)
         st.tracking.append({"frame": int(self.indices[k]), "loss": res.loss, "iters": res.iters,
                             "inliers": res.inliers, "trusted": trusted})

@@ -136,6 +136,27 @@ def evaluate_pose(scene, color, depth, intrinsics, pose: torch.Tensor, cfg: Conf
 SEEN = 0.5
 
 
+@torch.no_grad()
+def _rays_that_see_the_map(scene, color, intrinsics, pose, cfg: Config, generator):
+    """``(v, u, depth)`` ``[R]`` each: of ``tracking.pixels`` pixels drawn, those whose ray from ``pose`` ends on a
+    surface of the map (compositing weights summing past :data:`SEEN`), with the rendered depth (metres; no
+    jitter)."""
+    tc, r = cfg.tracking, cfg.rendering
+    v, u = sample_pixels(color.shape[0], color.shape[1], tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
+    v, u = v.to(color.device), u.to(color.device)
+    dirs_cam = pixel_directions(u.to(color.dtype), v.to(color.dtype), intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                intrinsics.cy)
+    origins, dirs = camera_rays(pose_to_matrix(pose), dirs_cam)
+    ahead = ray_box_exit(origins, dirs, scene.aabb) > 0
+    if int(ahead.sum()) == 0:
+        return v[:0], u[:0], origins.new_zeros(0)
+    out = render_rays(origins[ahead], dirs[ahead], origins.new_zeros(int(ahead.sum())), scene.sdf, scene.rgb,
+                      scene.beta, cfg.scene.truncation, r.n_stratified, r.n_importance, scene.aabb, False, None,
+                      r.color_cutoff)
+    seen = out.weights.sum(-1) > SEEN
+    return v[ahead][seen], u[ahead][seen], out.depth[seen]
+
+
 def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tensor, cfg: Config,
                    generator: torch.Generator, iters: int | None = None) -> tuple[TrackResult, float]:
     """Track a frame that has no valid depth on its colour alone (ours; docs/slam.md, "Robustness").
@@ -158,38 +179,20 @@ def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tens
     """
     tc = cfg.tracking
     iters = tc.iters if iters is None else iters
-    device, (H, W) = color.device, color.shape[:2]
+    device = color.device
     init_pose = init_pose.to(device)
     with tdfields.frozen(scene):
-        v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
-        v, u = v.to(device), u.to(device)
-        with torch.no_grad():
-            dirs_cam = pixel_directions(u.to(color.dtype), v.to(color.dtype), intrinsics.fx, intrinsics.fy,
-                                        intrinsics.cx, intrinsics.cy)
-            origins, dirs = camera_rays(pose_to_matrix(init_pose), dirs_cam)
-            ahead = ray_box_exit(origins, dirs, scene.aabb) > 0
-            if int(ahead.sum()) < 10:
-                return TrackResult(init_pose.cpu(), float("nan"), False, "the scene box is behind the camera", 0,
-                                   0.0), float("nan")
-            r = cfg.rendering
-            out = render_rays(origins[ahead], dirs[ahead], origins.new_zeros(int(ahead.sum())), scene.sdf, scene.rgb,
-                              scene.beta, cfg.scene.truncation, r.n_stratified, r.n_importance, scene.aabb, False,
-                              None, r.color_cutoff)
-            seen = out.weights.sum(-1) > SEEN
-        if int(seen.sum()) < 10:
-            return TrackResult(init_pose.cpu(), float("nan"), False, "too few rays see the map", 0, 0.0), float("nan")
-        v, u, depth = v[ahead][seen], u[ahead][seen], out.depth[seen]
-        share = float(seen.sum()) / tc.pixels
+        v, u, depth = _rays_that_see_the_map(scene, color, intrinsics, init_pose, cfg, generator)
+        if v.numel() < 10:
+            return TrackResult(init_pose.cpu(), float("nan"), False, "too few rays see the map", 0,
+                               v.numel() / tc.pixels), float("nan")
+        share = v.numel() / tc.pixels
 
         def loss_at(pose, perturb):
-            rendered = render_pixels(scene, u=u, v=v, depth=depth, color=color[v, u], c2w=pose_to_matrix(pose),
-                                     intrinsics=intrinsics, rendering=cfg.rendering, truncation=cfg.scene.truncation,
-                                     perturb=perturb, generator=generator, depth_required=True, min_rays=10)
-            return None if rendered is None else color_loss(rendered[0].color, rendered[2])
+            return _color_loss(scene, color, intrinsics, v, u, depth, pose, cfg, perturb, generator)
 
         with torch.no_grad():
-            start = loss_at(init_pose, False)
-        start = float("nan") if start is None else float(start)
+            start = _value(loss_at(init_pose, False))
         pose = init_pose.clone().requires_grad_(True)
         # the rotation only: one frame's colour pins where the camera looks, but barely how far it moved (the
         # parallax of one frame's motion is small), and moving the translation too doubled the error of dropped
@@ -211,6 +214,18 @@ def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tens
             return TrackResult(init_pose.cpu(), float("nan"), False, message or "no finite pose", it, share), start
         best_pose = normalize_pose(best_pose)
         with torch.no_grad():  # the same rays as `start`, without jitter: a fair comparison
-            final = loss_at(best_pose, False)
-    final = float("nan") if final is None else float(final)
+            final = _value(loss_at(best_pose, False))
     return TrackResult(best_pose.cpu(), final, True, message, it, share), start
+
+
+def _color_loss(scene, color, intrinsics, v, u, depth, pose, cfg: Config, perturb: bool, generator):
+    """Mean squared colour error of the pixels ``(v, u)`` rendered from ``pose`` ``[7]`` with samples around
+    ``depth`` ``[R]`` (differentiable in the pose); None when fewer than 10 rays stay in the box."""
+    rendered = render_pixels(scene, u=u, v=v, depth=depth, color=color[v, u], c2w=pose_to_matrix(pose),
+                             intrinsics=intrinsics, rendering=cfg.rendering, truncation=cfg.scene.truncation,
+                             perturb=perturb, generator=generator, depth_required=True, min_rays=10)
+    return None if rendered is None else color_loss(rendered[0].color, rendered[2])
+
+
+def _value(loss) -> float:
+    return float("nan") if loss is None else float(loss)

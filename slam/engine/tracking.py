@@ -101,17 +101,25 @@ MIN_CONTRAST = 1e-3
 
 
 def track_without_depth(k: int, inp: TrackInput, st: RunState, pred: torch.Tensor, what: str,
-                        run: Timeline) -> tuple[TrackResult | None, torch.Tensor, str]:
+                        run: Timeline) -> tuple[torch.Tensor, bool]:
     """Track frame position ``k``, which has no valid depth, on its colour from the prediction ``pred``
     (``tracking.without_depth: color``; :func:`slam.engine.tracker.track_on_color`).
 
     The colour pose is taken when its colour error (same rays, no jitter) is below the prediction's and the guard's
     motion checks pass against the last trusted frame; otherwise the prediction stays. Either way the frame stays
-    untrusted (it is not mapped, and the motion model does not take a velocity across it).
+    untrusted (it is not mapped, and the motion model does not take a velocity across it), and an event says what
+    happened (``color_tracked``); the per-frame tracking records keep the depth tracking loss only.
 
     Returns:
-        ``(result or None, pose [7], what happened)`` for the frame's event.
+        ``(pose [7], whether colour tracking ran)``.
     """
+    res, pose, happened = _color_pose(k, inp, st, pred, what, run)
+    run.event(k, f"no valid depth: {happened}", color_tracked=bool(res is not None and res.ok))
+    return pose, res is not None
+
+
+def _color_pose(k, inp: TrackInput, st: RunState, pred, what: str, run: Timeline):
+    """``(result or None, pose [7], what happened)`` of :func:`track_without_depth`."""
     if inp.cfg.tracking.without_depth == "predict":
         return None, pred, f"not tracked, {what} used"
     if float(inp.color.std()) < MIN_CONTRAST:

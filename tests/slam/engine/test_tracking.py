@@ -87,16 +87,21 @@ def test_a_frame_without_depth_is_turned_by_its_colour_only_when_that_is_plausib
         st = RunState(est=[last if last is not None else matrix_to_pose(torch.eye(4))], trusted=[True])
         inp = TrackInput(Room(), image, torch.zeros(image.shape[:2]), intr, cfg, torch.Generator().manual_seed(0),
                          TrackingGuard(cfg.tracking))
-        run = Timeline(dt=lambda k, j: (k - j) / 30, keyframes=list, frame_of=int, event=None)
-        return track_without_depth(1, inp, st, pred, "constant-velocity pose", run)
+        events = []
+        run = Timeline(dt=lambda k, j: (k - j) / 30, keyframes=list, frame_of=int,
+                       event=lambda k, what, **extra: events.append({"frame": k, "event": what, **extra}))
+        pose, tracked = track_without_depth(1, inp, st, pred, "constant-velocity pose", run)
+        assert len(events) == 1 and events[0]["event"].startswith("no valid depth: "), events
+        return pose, tracked, events[0]
 
-    res, pose, what = track()
-    assert res.ok and what.startswith("tracked on colour from the constant-velocity pose"), what
+    pose, tracked, event = track()
+    assert tracked and event["color_tracked"], event
+    assert event["event"].startswith("no valid depth: tracked on colour from the constant-velocity pose"), event
     assert float(rotation_angle(pose_to_matrix(pose)[:3, :3])) < 0.01  # back to the truth (2.5 degrees off)
     for overrides, image, last, why in (
             (["tracking.without_depth=predict"], color, None, "not tracked, constant-velocity pose used"),
             ((), torch.full_like(color, 0.5), None, "the colour image has no contrast either"),
             # the last trusted pose is 1 m away: 30 m/s in one frame, whatever colour says
             ((), color, matrix_to_pose(torch.eye(4)) + torch.tensor([0, 0, 0, 0, 1.0, 0, 0]), "m/s")):
-        res, pose, what = track(overrides, image, last)
-        assert torch.equal(pose, pred) and why in what, what
+        pose, tracked, event = track(overrides, image, last)
+        assert torch.equal(pose, pred) and why in event["event"] and not event["color_tracked"], event
