@@ -205,8 +205,9 @@ def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tens
             if loss is None or not torch.isfinite(loss):
                 message = "too few rays inside the scene box" if loss is None else "non-finite colour loss"
                 break
-            if float(loss.detach()) < best_loss:
-                best_loss, best_pose = float(loss.detach()), pose.detach().clone()
+            value = float(loss.detach())  # one host sync per iteration
+            if value < best_loss:
+                best_loss, best_pose = value, pose.detach().clone()
             opt.zero_grad()
             loss.backward()
             opt.step()
