@@ -114,6 +114,10 @@ class TrackingConfig:
     # the starting pose: ESLAM's constant velocity (const_speed), the previous pose, or depth ICP from the
     # previous frame started at the constant-velocity guess (ours; slam/core/odometry.py)
     init: str = choice("const_speed", ("const_speed", "previous", "icp"))
+    # ours (slam/core/odometry.py, hold_unobserved): with init icp, the start keeps the previous pose, not the
+    # constant-velocity prediction, in the directions the depth does not observe (a single plane in view): those
+    # whose point-to-plane eigenvalue is below icp_hold times the largest (0: off)
+    icp_hold: float = num(3e-4, lo=0, hi=1.0)
     outlier_factor: float = num(10.0, **POSITIVE)
     # ours: stop once `patience` iterations found no loss below the best by `min_improvement` (0: ESLAM's fixed count)
     patience: int = num(0, **NONNEG)

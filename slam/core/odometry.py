@@ -182,3 +182,64 @@ def icp_relative_pose(
                 break
     ok = inl >= min_inliers and rmse < max_dist[-1]
     return ICPResult(T.float(), float(inl), rmse, bool(ok and torch.isfinite(T).all()))
+
+
+# normals averaged over this many pixels square (at the coarsest pyramid level) for the observability check: the
+# raw normals' noise (a few millimetres of depth noise over neighbours a centimetre apart) makes a flat wall look
+# as constrained in its sliding directions as a furnished room (eigenvalue ratios 2e-3 to 1e-2 for both); averaged,
+# a flat wall's three fall to 1e-5 to 2e-4, while the TUM office's weakest stays at 3e-3 or more and a corridor's
+# axis at 1e-3 (docs/slam.md, Robustness)
+SMOOTH_NORMALS = 5
+
+
+def unobserved_directions(depth: torch.Tensor, intrinsics, below: float) -> torch.Tensor:
+    """The directions of camera motion that the geometry of a depth image does not observe: ``[6, m]`` orthonormal
+    twists (rotation, translation; left twists in this camera's frame), m = 0 to 6.
+
+    A direction is unobserved when its eigenvalue of the point-to-plane normal matrix (``[p x n, n]`` over the
+    image's points, normals averaged over :data:`SMOOTH_NORMALS` pixels square at the coarsest pyramid level) is
+    below ``below`` times the largest. Facing a single plane that is the slide along it and the turn about its
+    normal (3 directions); a room, a corner or a floor with furniture has none.
+
+    Args:
+        depth: ``[H, W]`` metres (0 invalid); intrinsics: its ``slam.data.Intrinsics``.
+        below: eigenvalue ratio under which a direction counts as unobserved.
+    """
+    f = pyramid(*depth.shape)[0]
+    d = _downsample(depth.detach().to("cpu", torch.float64), f)
+    vert = _vertices(d, intrinsics.fx / f, intrinsics.fy / f, intrinsics.cx / f, intrinsics.cy / f)
+    nrm, ok = _normals(vert, d, 0.1)
+    k = SMOOTH_NORMALS
+    summed = torch.nn.functional.avg_pool2d((nrm * ok[..., None]).permute(2, 0, 1)[None], k, 1, k // 2)[0]
+    share = torch.nn.functional.avg_pool2d(ok[None, None].double(), k, 1, k // 2)[0, 0]
+    nrm = summed.permute(1, 2, 0)
+    nrm = nrm / nrm.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    ok = ok & (share > 0.5)
+    if int(ok.sum()) < 50:
+        return torch.zeros(6, 0, dtype=torch.float64)
+    p, n = vert[ok], nrm[ok]
+    J = torch.cat((torch.linalg.cross(p, n, dim=-1), n), -1)
+    lam, vec = torch.linalg.eigh(J.T @ J / J.shape[0])
+    return vec[:, lam < below * lam[-1]]
+
+
+def hold_unobserved(relative: torch.Tensor, hold: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+    """``relative`` with its motion away from ``hold`` (both ``[4, 4]`` poses in the reference camera's frame) taken
+    out along ``directions`` ``[6, m]`` (:func:`unobserved_directions` of the reference image): there the result
+    is ``hold``'s, elsewhere ``relative``'s.
+
+    Why: ICP cannot move a pose along a direction depth does not observe, so it keeps whatever its start had
+    there. When the start is a constant-velocity prediction, an error in that direction becomes the next frame's
+    velocity and grows frame after frame (docs/slam.md, Robustness: "Depth ICP holds what it cannot see").
+    """
+    if directions.shape[1] == 0:
+        return relative
+    rel, held = relative.double(), hold.double()
+    D = rel @ torch.linalg.inv(held)  # a left twist, as ICP's steps apply theirs
+    cos = ((D[:3, :3].diagonal().sum() - 1) / 2).clamp(-1.0, 1.0)
+    angle = torch.arccos(cos)
+    axis = torch.stack((D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]))
+    w = axis / 2 if float(torch.sin(angle)) < 1e-9 else axis * (angle / (2 * torch.sin(angle)))
+    d = torch.cat((w, D[:3, 3]))
+    d = d - directions @ (directions.T @ d)
+    return (exp_se3(d) @ held).to(relative.dtype)

@@ -27,7 +27,7 @@ from typing import Callable
 
 import torch
 
-from slam.core.odometry import icp_relative_pose, pyramid
+from slam.core.odometry import hold_unobserved, icp_relative_pose, pyramid, unobserved_directions
 from slam.core.pose import matrix_to_pose, pose_to_matrix
 from slam.core.camera import sample_pixels
 from slam.engine.tracker import TrackResult, evaluate_pose, track_frame
@@ -57,7 +57,7 @@ class TrackInput:
 
 
 def icp_start(ref_pose: torch.Tensor, ref_depth: torch.Tensor, guess: torch.Tensor, depth: torch.Tensor,
-              intr, **icp) -> tuple[torch.Tensor, bool]:
+              intr, hold_pose: torch.Tensor | None = None, hold: float = 0.0, **icp) -> tuple[torch.Tensor, bool]:
     """The start pose of a frame from depth ICP against a reference frame.
 
     Args:
@@ -65,6 +65,9 @@ def icp_start(ref_pose: torch.Tensor, ref_depth: torch.Tensor, guess: torch.Tens
         ref_depth, depth: ``[H, W]`` metres (0 invalid) of the reference and the current frame.
         guess: ``[7]`` the current frame's predicted pose; ICP starts at the motion it implies.
         intr: working-image intrinsics.
+        hold_pose, hold: ``tracking.icp_hold`` (ours): in the directions the reference image's geometry does not
+            observe (a single plane in view; :func:`slam.core.odometry.unobserved_directions` with ratio ``hold``),
+            the start is ``hold_pose``'s ``[7]`` (the previous pose), not the guess's (0: off).
         icp: more :func:`slam.core.odometry.icp_relative_pose` arguments.
 
     Returns:
@@ -75,7 +78,11 @@ def icp_start(ref_pose: torch.Tensor, ref_depth: torch.Tensor, guess: torch.Tens
     res = icp_relative_pose(ref_depth, depth, intr, init=rel0, **icp)
     if not res.ok:
         return guess, False
-    return matrix_to_pose((ref @ res.relative.double()).float()), True
+    rel = res.relative.double()
+    if hold > 0 and hold_pose is not None:
+        rel = hold_unobserved(rel, torch.linalg.solve(ref, pose_to_matrix(hold_pose).double()),
+                              unobserved_directions(ref_depth, intr, hold))
+    return matrix_to_pose((ref @ rel).float()), True
 
 
 def _common_pixels(inp: TrackInput) -> tuple[torch.Tensor, torch.Tensor]:
