@@ -48,11 +48,11 @@ def errors(est: torch.Tensor, gt: torch.Tensor) -> dict:
 def replay(cfg, checkpoint: Path, until: int) -> list[dict]:
     """Resume a fresh system under ``cfg`` from ``checkpoint`` and run it to frame position ``until``."""
     from slam.core.pose import pose_to_matrix
-    from slam.engine.setup import load_data
+    from slam.engine.setup import load_data, resolve_device
     from slam.engine.system import SLAM
     from slam.run.checkpoint import load_run, restore
 
-    system = SLAM(cfg, load_data(cfg), "cpu")
+    system = SLAM(cfg, load_data(cfg), resolve_device(cfg.device))
     rows = []
     try:
         start = restore(system, load_run(checkpoint))
