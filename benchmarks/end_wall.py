@@ -34,14 +34,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 def errors(est: torch.Tensor, gt: torch.Tensor) -> dict:
     """Position (cm) and orientation (degrees) error of ``est`` against ``gt`` (``[4, 4]`` camera-to-world), and the
     orientation error as a world-frame rotation vector (degrees)."""
-    from slam.core.pose import rotation_angle
+    from slam.core.pose import rotation_vector
 
     est, gt = est.double(), gt.double()
-    R = est[:3, :3] @ gt[:3, :3].T
-    angle = float(rotation_angle(R))
-    axis = torch.stack((R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]))
-    vec = axis * (angle / (2 * math.sin(angle))) if angle > 1e-9 else axis / 2
-    return {"cm": 100 * float((est[:3, 3] - gt[:3, 3]).norm()), "deg": math.degrees(angle),
+    vec = rotation_vector(est[:3, :3] @ gt[:3, :3].T)
+    return {"cm": 100 * float((est[:3, 3] - gt[:3, 3]).norm()), "deg": math.degrees(float(vec.norm())),
             "world_rotvec_deg": [round(math.degrees(float(v)), 3) for v in vec]}
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from slam.core.camera import backproject
-from slam.core.pose import exp_se3
+from slam.core.pose import exp_se3, rotation_vector
 
 
 @dataclass
@@ -236,10 +236,6 @@ def hold_unobserved(relative: torch.Tensor, hold: torch.Tensor, directions: torc
         return relative
     rel, held = relative.double(), hold.double()
     D = rel @ torch.linalg.inv(held)  # a left twist, as ICP's steps apply theirs
-    cos = ((D[:3, :3].diagonal().sum() - 1) / 2).clamp(-1.0, 1.0)
-    angle = torch.arccos(cos)
-    axis = torch.stack((D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]))
-    w = axis / 2 if float(torch.sin(angle)) < 1e-9 else axis * (angle / (2 * torch.sin(angle)))
-    d = torch.cat((w, D[:3, 3]))
+    d = torch.cat((rotation_vector(D[:3, :3]), D[:3, 3]))
     d = d - directions @ (directions.T @ d)
     return (exp_se3(d) @ held).to(relative.dtype)

@@ -153,6 +153,14 @@ def rotation_angle(R: torch.Tensor) -> torch.Tensor:
     return torch.arccos(((R.trace() - 1) / 2).clamp(-1.0, 1.0))
 
 
+def rotation_vector(R: torch.Tensor) -> torch.Tensor:
+    """``[3, 3]`` rotation -> ``[3]`` rotation vector (axis times angle, radians), for angles well below 180 degrees
+    (the inverse of :func:`exp_se3`'s rotation there)."""
+    angle = rotation_angle(R)
+    axis = torch.stack((R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]))
+    return axis / 2 if float(torch.sin(angle)) < 1e-9 else axis * (angle / (2 * torch.sin(angle)))
+
+
 def exp_se3(xi: torch.Tensor) -> torch.Tensor:
     """``[6]`` twist ``(rotation vector, translation)`` (radians, metres) -> ``[4, 4]`` rigid motion, exact in the
     rotation and first-order in the translation; a pose update left-multiplies it: ``T <- exp_se3(xi) @ T``."""
