@@ -102,6 +102,9 @@ class RenderingConfig:
     n_importance: int = num(8, lo=0, hi=4096)
     perturb: bool = True
     color_cutoff: float = num(0.0, lo=0, hi=1, hi_open=True)
+    # ours (slam/core/fused_render.py): compositing and the five loss terms as one numba kernel per direction on
+    # the CPU (the PyTorch ops elsewhere, and with TDFIELDS_BACKEND=torch); same values to a few ulp
+    fused: bool = False
 
 
 @dataclass

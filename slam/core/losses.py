@@ -26,6 +26,8 @@ from typing import Callable
 
 import torch
 
+from slam.core import fused_render
+
 
 @dataclass
 class LossWeights:
@@ -117,6 +119,9 @@ class LossBatch:
         return sdf_losses(self.sdf, self.z, self.depth, self.truncation)
 
 
+#: the terms the fused kernel computes, in its order (:func:`total_loss` uses it while these are all the terms)
+FUSED_TERMS = ("fs", "center", "tail", "depth", "color")
+
 #: name -> term, in the order :func:`total_loss` sums them; each name is a field of :class:`LossWeights`
 LOSS_TERMS: dict[str, Callable[[LossBatch], torch.Tensor]] = {}
 
@@ -168,6 +173,8 @@ def total_loss(
     truncation: float,
     weights: LossWeights,
     depth_mask: torch.Tensor | None = None,
+    rows: torch.Tensor | None = None,
+    fused: bool = False,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Weighted sum of the terms of :data:`LOSS_TERMS`, in its order (``weights`` has one weight per term).
 
@@ -176,6 +183,10 @@ def total_loss(
         rendered_depth, depth: ``[R]``; rendered_color, color: ``[R, 3]``.
         depth_mask: ``[R]`` bool, rays used by the SDF and depth terms (default ``depth > 0``); the colour term
             uses every ray passed in.
+        rows: ``[R]`` bool, the rays to use at all (default: every ray): the same as passing ``x[rows]`` of
+            every argument, without the copies.
+        fused: the five built-in terms in one kernel (:func:`slam.core.fused_render.loss_terms`) where it can run
+            (CPU, float, no other term registered), the same values to a few ulp; otherwise PyTorch ops.
 
     Returns:
         ``(loss, parts)`` with the scalar loss and the unweighted terms as detached 0-d tensors. A term whose
@@ -183,9 +194,18 @@ def total_loss(
     """
     if depth_mask is None:
         depth_mask = depth > 0
-    batch = LossBatch(sdf[depth_mask], z[depth_mask], depth[depth_mask], rendered_depth[depth_mask],
-                      rendered_color, color, truncation)
-    parts = {name: term(batch) for name, term in LOSS_TERMS.items()}
+    if fused and tuple(LOSS_TERMS) == FUSED_TERMS and fused_render.eligible(
+            sdf, rendered_depth, rendered_color, constant=(z, depth, color)):
+        terms = fused_render.loss_terms(sdf, z, rendered_depth, rendered_color, depth, color, truncation, depth_mask,
+                                        rows)
+        parts = dict(zip(FUSED_TERMS, terms.unbind()))
+    else:
+        if rows is not None:
+            sdf, z, rendered_depth, rendered_color = sdf[rows], z[rows], rendered_depth[rows], rendered_color[rows]
+            depth, color, depth_mask = depth[rows], color[rows], depth_mask[rows]
+        batch = LossBatch(sdf[depth_mask], z[depth_mask], depth[depth_mask], rendered_depth[depth_mask],
+                          rendered_color, color, truncation)
+        parts = {name: term(batch) for name, term in LOSS_TERMS.items()}
     loss = None
     for name, part in parts.items():  # left to right, as ``w1 * t1 + w2 * t2 + ...``: the same rounding
         weighted = getattr(weights, name) * part

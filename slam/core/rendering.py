@@ -1,4 +1,5 @@
-"""Functional ray core: pixel rays, ray/box exit, ESLAM's sampling and SDF volume compositing.
+"""Functional ray core: pixel rays, ray/box exit, where rays are sampled, and ESLAM's SDF volume compositing (the
+sample depths themselves: :mod:`slam.core.sampling`).
 
 Nothing here owns a model. :func:`render_rays` takes two callables, ``sdf_fn(points) -> sdf`` and
 ``rgb_fn(points) -> rgb``, so the same code renders any representation (and a hand-written stand-in in the tests).
@@ -15,7 +16,9 @@ from typing import Callable
 
 import torch
 
+from slam.core import fused_render
 from slam.core.camera import pixel_directions
+from slam.core.sampling import perturb_depths, sample_depth_rays, sample_pdf
 
 SdfFn = Callable[[torch.Tensor], torch.Tensor]
 RgbFn = Callable[[torch.Tensor], torch.Tensor]
@@ -59,78 +62,6 @@ def ray_box_exit(origins: torch.Tensor, dirs: torch.Tensor, aabb: torch.Tensor) 
     return torch.maximum(t0, t1).min(-1).values
 
 
-def _perturb(z: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-    """NeRF stratified jitter: each sample uniform within its midpoint interval (``z`` sorted ``[R, N]``)."""
-    mids = 0.5 * (z[..., 1:] + z[..., :-1])
-    upper = torch.cat((mids, z[..., -1:]), -1)
-    lower = torch.cat((z[..., :1], mids), -1)
-    t = torch.rand(z.shape, generator=generator, dtype=z.dtype, device="cpu").to(z.device)
-    return lower + (upper - lower) * t
-
-
-def sample_depth_rays(
-    depth: torch.Tensor,
-    n_stratified: int,
-    n_importance: int,
-    truncation: float,
-    perturb: bool = True,
-    generator: torch.Generator | None = None,
-) -> torch.Tensor:
-    """Sample depths for rays with a valid measurement ``D > 0`` (ESLAM).
-
-    ``n_stratified`` evenly spaced values on ``[0, 1.2 D]`` plus ``n_importance`` evenly spaced values on
-    ``[D - 1.5 T, D + 1.5 T]``, sorted, then jittered within midpoint intervals.
-
-    Args:
-        depth: ``[R]`` measured depth, metres (> 0).
-
-    Returns:
-        ``[R, n_stratified + n_importance]`` sorted sample depths (no gradient).
-    """
-    d = depth.detach()[:, None]
-    lin_s = torch.linspace(0.0, 1.0, n_stratified, dtype=d.dtype, device=d.device)
-    z = [1.2 * d * lin_s]
-    if n_importance > 0:
-        lin_i = torch.linspace(-1.5 * truncation, 1.5 * truncation, n_importance, dtype=d.dtype, device=d.device)
-        z.append(d + lin_i)
-    z = torch.sort(torch.cat(z, -1), -1).values
-    return _perturb(z, generator) if perturb else z
-
-
-def sample_pdf(bins: torch.Tensor, weights: torch.Tensor, n: int, generator: torch.Generator | None = None,
-               deterministic: bool = False) -> torch.Tensor:
-    """Inverse-CDF sampling (NeRF ``sample_pdf``) with ESLAM's quirk: the pdf is the raw weights, unnormalised.
-
-    Args:
-        bins: ``[R, M + 1]`` bin edges.
-        weights: ``[R, M]`` non-negative weights.
-        n: samples per ray.
-
-    Returns:
-        ``[R, n]`` samples (no gradient).
-    """
-    weights = weights.detach() + 1e-5
-    pdf = weights  # ESLAM: pdf overwritten by the raw weights (not divided by the sum)
-    cdf = torch.cumsum(pdf, -1)
-    cdf = torch.cat((torch.zeros_like(cdf[..., :1]), cdf), -1)
-    if deterministic:
-        u = torch.linspace(0.0, 1.0, n, dtype=bins.dtype, device=bins.device).expand(cdf.shape[0], n)
-    else:
-        u = torch.rand((cdf.shape[0], n), generator=generator, dtype=bins.dtype, device="cpu").to(bins.device)
-    u = u.contiguous()
-    inds = torch.searchsorted(cdf.contiguous(), u, right=True)
-    below = (inds - 1).clamp(min=0)
-    above = inds.clamp(max=cdf.shape[-1] - 1)
-    cdf_b = torch.gather(cdf, -1, below)
-    cdf_a = torch.gather(cdf, -1, above)
-    bins_b = torch.gather(bins, -1, below)
-    bins_a = torch.gather(bins, -1, above)
-    denom = cdf_a - cdf_b
-    denom = torch.where(denom < 1e-5, torch.ones_like(denom), denom)
-    t = (u - cdf_b) / denom
-    return bins_b + t * (bins_a - bins_b)
-
-
 def sdf_to_alpha(sdf: torch.Tensor, beta: torch.Tensor | float) -> torch.Tensor:
     """StyleSDF density and ESLAM opacity: ``alpha = 1 - exp(-beta * sigmoid(-beta * s))`` (no interval length)."""
     sigma = beta * torch.sigmoid(-beta * sdf)
@@ -169,6 +100,7 @@ def render_rays(
     perturb: bool = True,
     generator: torch.Generator | None = None,
     color_cutoff: float = 0.0,
+    fused: bool = False,
 ) -> RenderOut:
     """Render rays with ESLAM's sampling and compositing.
 
@@ -186,26 +118,22 @@ def render_rays(
         color_cutoff: samples whose compositing weight is at most this get no colour query (their colour counts
             as 0). ``0`` queries every sample, as ESLAM does. A positive cutoff skips the free space in front of a
             surface and everything behind it, so the rendered colour changes by at most ``N * color_cutoff``.
+        fused: composite with the fused kernel (:mod:`slam.core.fused_render`) where it can run (CPU, float),
+            the same values to a few ulp and the same gradients; otherwise this module's PyTorch ops.
 
     Returns:
         :class:`RenderOut`.
     """
     R = depth.shape[0]
     N = n_stratified + n_importance
-    valid = depth > 0
-    if bool(valid.all()):
-        z = sample_depth_rays(depth, n_stratified, n_importance, truncation, perturb, generator)
-    else:
-        z = torch.empty((R, N), dtype=origins.dtype, device=origins.device)
-        if bool(valid.any()):
-            z[valid] = sample_depth_rays(depth[valid], n_stratified, n_importance, truncation, perturb, generator)
-        inv = ~valid
-        if aabb is None:
-            raise ValueError("rays without depth need the scene aabb")
-        z[inv] = _sample_free_rays(origins[inv], dirs[inv], sdf_fn, beta, n_stratified, n_importance, aabb, perturb,
-                                   generator)
+    z = _sample_ray_depths(origins, dirs, depth, sdf_fn, beta, truncation, n_stratified, n_importance, aabb, perturb,
+                           generator)
     pts = (origins[:, None, :] + dirs[:, None, :] * z[..., None]).reshape(-1, 3)
     sdf = sdf_fn(pts).reshape(R, N)
+    if fused and fused_render.eligible(sdf, constant=(z,)):
+        w, depth_hat = fused_render.composite(sdf, beta, z)
+        rgb = _sample_colors(pts, w, rgb_fn, color_cutoff)
+        return RenderOut(depth=depth_hat, color=fused_render.color_sum(w, rgb), sdf=sdf, z=z, weights=w)
     w = composite_weights(sdf_to_alpha(sdf, beta))
     rgb = _sample_colors(pts, w, rgb_fn, color_cutoff)
     return RenderOut(
@@ -215,6 +143,24 @@ def render_rays(
         z=z,
         weights=w,
     )
+
+
+def _sample_ray_depths(origins, dirs, depth, sdf_fn: SdfFn, beta, truncation: float, n_stratified: int,
+                       n_importance: int, aabb, perturb: bool, generator) -> torch.Tensor:
+    """``[R, n_stratified + n_importance]`` sample depths of :func:`render_rays`: around the measurement where
+    ``depth > 0``, :func:`_sample_free_rays` elsewhere."""
+    valid = depth > 0
+    if bool(valid.all()):
+        return sample_depth_rays(depth, n_stratified, n_importance, truncation, perturb, generator)
+    z = torch.empty((depth.shape[0], n_stratified + n_importance), dtype=origins.dtype, device=origins.device)
+    if bool(valid.any()):
+        z[valid] = sample_depth_rays(depth[valid], n_stratified, n_importance, truncation, perturb, generator)
+    inv = ~valid
+    if aabb is None:
+        raise ValueError("rays without depth need the scene aabb")
+    z[inv] = _sample_free_rays(origins[inv], dirs[inv], sdf_fn, beta, n_stratified, n_importance, aabb, perturb,
+                               generator)
+    return z
 
 
 def _sample_colors(pts: torch.Tensor, w: torch.Tensor, rgb_fn: RgbFn, color_cutoff: float) -> torch.Tensor:
@@ -237,7 +183,7 @@ def _sample_free_rays(origins, dirs, sdf_fn: SdfFn, beta, n_stratified: int, n_i
     lin = torch.linspace(0.0, 1.0, n_stratified, dtype=origins.dtype, device=origins.device)
     zs = far[:, None] * lin
     if perturb:
-        zs = _perturb(zs, generator)
+        zs = perturb_depths(zs, generator)
     if n_importance > 0:
         with torch.no_grad():
             pts = origins.detach()[:, None] + dirs.detach()[:, None] * zs[..., None]
@@ -265,7 +211,7 @@ def render_pixels(scene, *, u: torch.Tensor, v: torch.Tensor, depth: torch.Tenso
         c2w: ``[4, 4]`` camera-to-world, or ``[R, 4, 4]`` one per ray (differentiable: tracking and BA go
             through it).
         intrinsics: ``fx, fy, cx, cy`` of the working image (pixels).
-        rendering: the ``rendering`` config (``n_stratified``, ``n_importance``, ``color_cutoff``).
+        rendering: the ``rendering`` config (``n_stratified``, ``n_importance``, ``color_cutoff``, ``fused``).
         truncation: TSDF truncation in metres.
         min_rays: fewer kept rays than this returns None.
 
@@ -282,5 +228,6 @@ def render_pixels(scene, *, u: torch.Tensor, v: torch.Tensor, depth: torch.Tenso
         return None
     origins, dirs, depth, color = origins[keep], dirs[keep], depth[keep], color[keep]
     out = render_rays(origins, dirs, depth, scene.sdf, scene.rgb, scene.beta, truncation, rendering.n_stratified,
-                      rendering.n_importance, scene.aabb, perturb, generator, rendering.color_cutoff)
+                      rendering.n_importance, scene.aabb, perturb, generator, rendering.color_cutoff,
+                      rendering.fused)
     return out, depth, color

@@ -35,7 +35,8 @@ import tdfields
 from slam.core.camera import pixel_directions, sample_pixels
 from slam.core.losses import sdf_regions, total_loss, tracking_inliers
 from slam.core.pose import exp_se3, matrix_to_pose, normalize_pose, pose_to_matrix
-from slam.core.rendering import composite_weights, ray_box_exit, sample_depth_rays, sdf_to_alpha
+from slam.core.rendering import composite_weights, ray_box_exit, sdf_to_alpha
+from slam.core.sampling import sample_depth_rays
 from slam.engine.state import TrackResult
 
 

@@ -116,7 +116,8 @@ def _loss(scene, colors, depths, poses, intrinsics, cfg: Config, per_frame: int,
     if rendered is None:
         return None
     out, D, C = rendered
-    return total_loss(out.sdf, out.z, out.depth, out.color, D, C, cfg.scene.truncation, cfg.mapping.weights)[0]
+    return total_loss(out.sdf, out.z, out.depth, out.color, D, C, cfg.scene.truncation, cfg.mapping.weights,
+                      fused=cfg.rendering.fused)[0]
 
 
 def _write_back(cam, free, window: list[int], keyframes: KeyframeStore, pose):

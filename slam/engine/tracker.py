@@ -44,8 +44,8 @@ def _loss_at(scene, color, depth, intrinsics, c2w, cfg: Config, v, u, generator,
     inl = tracking_inliers(out.depth, D, tc.outlier_factor)
     if int(inl.sum()) < 10:
         return None, 0.0, "too few inlier rays"
-    loss, _ = total_loss(out.sdf[inl], out.z[inl], out.depth[inl], out.color[inl], D[inl], C[inl],
-                         cfg.scene.truncation, tc.weights)
+    loss, _ = total_loss(out.sdf, out.z, out.depth, out.color, D, C, cfg.scene.truncation, tc.weights, rows=inl,
+                         fused=cfg.rendering.fused)
     return loss, float(inl.float().mean()), ""
 
 

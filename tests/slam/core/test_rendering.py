@@ -2,8 +2,7 @@ import math
 
 import torch
 
-from slam.core.rendering import (camera_rays, composite_weights, ray_box_exit, render_pixels, render_rays,
-                                 sample_depth_rays, sample_pdf, sdf_to_alpha)
+from slam.core.rendering import camera_rays, composite_weights, ray_box_exit, render_pixels, render_rays, sdf_to_alpha
 
 
 def test_camera_rays_rotate_and_keep_depth_parameter():
@@ -26,26 +25,6 @@ def test_ray_box_exit():
     assert torch.allclose(t, torch.tensor([2.0, 1.0, 2.0]))
 
 
-def test_sample_depth_rays_unperturbed():
-    D = torch.tensor([1.0, 2.0])
-    z = sample_depth_rays(D, n_stratified=5, n_importance=3, truncation=0.1, perturb=False)
-    assert z.shape == (2, 8)
-    assert torch.all(z[:, 1:] >= z[:, :-1])
-    expect0 = sorted([0.0, 0.3, 0.6, 0.9, 1.2, 0.85, 1.0, 1.15])
-    assert torch.allclose(z[0], torch.tensor(expect0), atol=1e-6)
-
-
-def test_sample_depth_rays_perturbed_within_intervals():
-    g = torch.Generator().manual_seed(0)
-    D = torch.full((100,), 2.0)
-    z0 = sample_depth_rays(D, 8, 4, 0.06, perturb=False)
-    z = sample_depth_rays(D, 8, 4, 0.06, perturb=True, generator=g)
-    mids = 0.5 * (z0[:, 1:] + z0[:, :-1])
-    lo = torch.cat((z0[:, :1], mids), -1)
-    hi = torch.cat((mids, z0[:, -1:]), -1)
-    assert torch.all(z >= lo - 1e-6) and torch.all(z <= hi + 1e-6)
-
-
 def test_composite_weights_hand_computed():
     alpha = torch.tensor([[0.5, 0.5, 1.0]])
     w = composite_weights(alpha)
@@ -54,16 +33,6 @@ def test_composite_weights_hand_computed():
     s = torch.tensor([0.0])
     a = sdf_to_alpha(s, 10.0)
     assert torch.allclose(a, torch.tensor([1 - math.exp(-5.0)]))
-
-
-def test_sample_pdf_concentrates_on_heavy_bin():
-    bins = torch.linspace(0, 1, 11).expand(4, 11)
-    w = torch.zeros(4, 10)
-    w[:, 6] = 1.0
-    s = sample_pdf(bins, w, 50, generator=torch.Generator().manual_seed(0))
-    # most samples inside the heavy bin [0.6, 0.7] (the unnormalised cdf may end beyond 1)
-    inside = ((s >= 0.6 - 1e-6) & (s <= 0.7 + 1e-6)).float().mean()
-    assert inside > 0.9
 
 
 def _plane(T: float, grey: float):
@@ -128,7 +97,7 @@ def test_render_pixels_keeps_rays_inside_the_box_and_with_depth_when_asked():
                             rgb=lambda p: torch.full((p.shape[0], 3), 0.5), beta=torch.tensor(10.0),
                             aabb=torch.tensor([[-5.0, 5.0], [-5.0, 5.0], [0.0, 2.5]]))
     intr = SimpleNamespace(fx=10.0, fy=10.0, cx=5.0, cy=5.0)
-    rendering = SimpleNamespace(n_stratified=32, n_importance=8, color_cutoff=0.0)
+    rendering = SimpleNamespace(n_stratified=32, n_importance=8, color_cutoff=0.0, fused=False)
     u, v = torch.tensor([5, 5, 6, 4]), torch.tensor([5, 4, 5, 6])
     depth = torch.tensor([2.0, 0.0, 3.0, 2.0])  # the third reading is beyond the box (z <= 2.5)
     color = torch.rand(4, 3)

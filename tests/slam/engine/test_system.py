@@ -99,20 +99,31 @@ def test_deterministic_for_a_seed_wherever_the_keyframes_live(tiny_seq, parallel
         assert torch.equal(b.scene.state_dict()[name], t), name
 
 
-@pytest.mark.parametrize("representation", ["lrslam", "eslam"])
-def test_fused_kernels_follow_the_reference_path_through_a_run(tiny_seq, representation):
-    # the fused kernels' shortcuts (merged rank loops, points with zero gradient skipped) checked where they run:
-    # parallel tracking and mapping with fused Adam, BA and the frozen-field caches, against the pure-torch path
+@pytest.mark.parametrize("representation,parallel", [("lrslam", "true"), ("eslam", "true"), ("lrslam", "false")])
+def test_fused_kernels_follow_the_reference_path_through_a_run(tiny_seq, representation, parallel, monkeypatch):
+    # the fused kernels' shortcuts (merged rank loops, points with zero gradient skipped) and the fused render tail
+    # (rendering.fused) checked where they run: tracking and mapping in both loop modes with fused Adam, BA and the
+    # frozen-field caches, against the pure-torch path (the backend "torch" turns the render tail off too)
+    from slam.core import fused_render
     from tdfields import kernels
 
+    calls = {"composite": 0, "loss_terms": 0}
+    for name in calls:
+        def counted(*args, _fn=getattr(fused_render, name), _name=name):
+            calls[_name] += 1
+            return _fn(*args)
+        monkeypatch.setattr(fused_render, name, counted)
     runs = {}
     for backend in ("torch", "numba"):
         with kernels.use_backend(backend):
             # every frame mapped and a keyframe, BA from the second keyframe on: the TUM preset's schedule
-            s = _system(tiny_seq, [f"representation={representation}", "parallel=true", "data.max_frames=5",
-                                   "mapping.every_frame=1", "mapping.keyframe_every=1", "mapping.ba_min_keyframes=1"])
+            s = _system(tiny_seq, [f"representation={representation}", f"parallel={parallel}", "data.max_frames=5",
+                                   "mapping.every_frame=1", "mapping.keyframe_every=1", "mapping.ba_min_keyframes=1",
+                                   "rendering.fused=true"])
             s.run(progress=False)
             runs[backend] = (torch.stack(s.state.est), s.scene.state_dict())
+        # the tail runs in the numba run only, in tracking and mapping alike
+        assert (min(calls.values()) > 0) == (backend == "numba"), (backend, calls)
     (ref_poses, ref_map), (poses, fused_map) = runs["torch"], runs["numba"]
     torch.testing.assert_close(poses, ref_poses, rtol=0, atol=1e-4)
     for name, t in ref_map.items():
