@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import torch
 
 import tdfields
+from slam.core import fused_render
 from slam.core.camera import pixel_directions, sample_pixels
 from slam.core.losses import sdf_regions, total_loss, tracking_inliers
 from slam.core.pose import exp_se3, matrix_to_pose, normalize_pose, pose_to_matrix
@@ -57,14 +58,20 @@ def _points(T: torch.Tensor, rays: _Rays) -> torch.Tensor:
     return T[:3, 3] + dirs[:, None, :] * rays.z[..., None]
 
 
-def _render(scene, pts: torch.Tensor, rays: _Rays, cutoff: float):
+def _render(scene, pts: torch.Tensor, rays: _Rays, cutoff: float, fused: bool):
     """SDF ``[R, N]``, colour ``[R, N, 3]`` at the points, and the depth / colour composited from detached copies
-    of them (the leaves ``s_l``, ``rgb_l``), so the compositing can be differentiated on its own."""
+    of them (the leaves ``s_l``, ``rgb_l``), so the compositing can be differentiated on its own (with ``fused``,
+    by :mod:`slam.core.fused_render` where it can run)."""
     R, N, _ = pts.shape
     flat = pts.reshape(-1, 3)
     s = scene.sdf(flat).reshape(R, N)
     s_l = s.detach().requires_grad_(True)
-    w = composite_weights(sdf_to_alpha(s_l, scene.beta))
+    fused = fused and fused_render.eligible(s_l, constant=(rays.z,))
+    if fused:
+        w, depth = fused_render.composite(s_l, scene.beta, rays.z)
+    else:
+        w = composite_weights(sdf_to_alpha(s_l, scene.beta))
+        depth = (w * rays.z).sum(-1)
     keep = (w.detach() > cutoff).reshape(-1) if cutoff > 0 else None
     if keep is None:
         rgb = scene.rgb(flat).reshape(R, N, 3)
@@ -73,13 +80,13 @@ def _render(scene, pts: torch.Tensor, rays: _Rays, cutoff: float):
         rgb[keep] = scene.rgb(flat[keep])
         rgb = rgb.reshape(R, N, 3)
     rgb_l = rgb.detach().requires_grad_(True)
-    depth = (w * rays.z).sum(-1)
-    color = (w[..., None] * rgb_l).sum(-2)
+    color = fused_render.color_sum(w, rgb_l) if fused else (w[..., None] * rgb_l).sum(-2)
     return s, rgb, s_l, rgb_l, w, depth, color
 
 
 def _loss(s, depth, color, rays: _Rays, cfg) -> torch.Tensor:
-    return total_loss(s, rays.z, depth, color, rays.D, rays.C, cfg.scene.truncation, cfg.tracking.weights)[0]
+    return total_loss(s, rays.z, depth, color, rays.D, rays.C, cfg.scene.truncation, cfg.tracking.weights,
+                      fused=cfg.rendering.fused)[0]
 
 
 def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg):
@@ -139,7 +146,7 @@ def _draw_rays(scene, color, depth, intrinsics, T, cfg, generator) -> _Rays | No
 def _evaluate(scene, T, rays, cfg, jacobian: bool):
     pts = _points(T, rays).requires_grad_(jacobian)
     with torch.set_grad_enabled(jacobian):
-        out = _render(scene, pts, rays, cfg.rendering.color_cutoff)
+        out = _render(scene, pts, rays, cfg.rendering.color_cutoff, cfg.rendering.fused)
         s, rgb, s_l, rgb_l, w, depth, color = out
         loss = float(_loss(s.detach(), depth.detach(), color.detach(), rays, cfg))
         if not jacobian or not math.isfinite(loss):

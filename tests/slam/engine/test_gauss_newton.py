@@ -54,6 +54,25 @@ def test_the_normal_equations_are_the_derivatives_of_the_loss(mapped):
     assert bool((torch.linalg.eigvalsh(H) > 0).all())  # six observable directions
 
 
+def test_the_fused_render_tail_gives_the_reference_normal_equations(mapped):
+    import tdfields
+    from slam.engine import gauss_newton as gn
+
+    s, cfg, frame = mapped
+    T = s.gt[5].clone()
+    out = {}
+    for fused in (False, True):
+        c = copy.deepcopy(cfg)
+        c.rendering.fused = fused
+        with tdfields.frozen(s.scene):
+            rays = gn._draw_rays(s.scene, frame.color, frame.depth, s.intr, T, c, torch.Generator().manual_seed(3))
+            out[fused] = gn._evaluate(s.scene, T, rays, c, jacobian=True)
+    (loss0, _, (H0, b0)), (loss1, _, (H1, b1)) = out[False], out[True]
+    assert loss1 == pytest.approx(loss0, rel=1e-5)
+    torch.testing.assert_close(H1, H0, rtol=1e-4, atol=1e-6 * float(H0.abs().max()))
+    torch.testing.assert_close(b1, b0, rtol=1e-4, atol=1e-5 * float(b0.abs().max()))
+
+
 def test_it_converges_from_a_known_offset_in_a_handful_of_evaluations(mapped):
     """From an offset of a few cm and degrees, 8 Levenberg-Marquardt evaluations take the camera at least 5x closer
     to where it settles with a long budget (the tiny room's optimum is shallow: benchmarks/gn_convergence.py
