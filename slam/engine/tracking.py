@@ -11,6 +11,8 @@ relocalisation); everything it decides is an event.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Callable
 
@@ -109,13 +111,17 @@ def track_without_depth(k: int, inp: TrackInput, st: RunState, pred: torch.Tenso
     The colour pose is taken when its colour error (same rays, no jitter) is below the prediction's and the guard's
     motion checks pass against the last trusted frame; otherwise the prediction stays. Either way the frame stays
     untrusted (it is not mapped, and the motion model does not take a velocity across it), and an event says what
-    happened (``color_tracked``); the per-frame tracking records keep the depth tracking loss only.
+    happened (``color_tracked``; where colour tracking ran, ``color_loss``, ``color_iters`` and ``color_share``, the
+    share of the pixels that see the map); the per-frame tracking records keep the depth tracking loss only, and
+    ``frames.csv`` shows both, its ``tracked_on`` column saying which.
 
     Returns:
         ``(pose [7], whether colour tracking ran)``.
     """
     res, pose, happened = _color_pose(k, inp, st, pred, what, run)
-    run.event(k, f"no valid depth: {happened}", color_tracked=bool(res is not None and res.ok))
+    extra = {} if res is None else {"color_loss": res.loss if math.isfinite(res.loss) else None,  # JSON has no NaN
+                                    "color_iters": res.iters, "color_share": res.inliers}
+    run.event(k, f"no valid depth: {happened}", color_tracked=bool(res is not None and res.ok), **extra)
     return pose, res is not None
 
 

@@ -81,25 +81,32 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
 
 
 def write_frames(run, out: Path) -> None:
-    """``frames.csv``: one row per processed frame (position, dataset frame, wall seconds, trusted, for tracked
-    frames the best loss, the iterations run and the inlier share, and the scene's parameters and field bytes after
-    the frame: they change where the box grew, :mod:`slam.engine.growth`)."""
+    """``frames.csv``: one row per processed frame (position, dataset frame, wall seconds, trusted, what it was
+    tracked on (``depth``; ``color`` for a frame without depth whose colour pose was taken, ``prediction`` where colour
+    tracking ran and was not taken; empty where nothing was tracked), the tracking's best loss (the depth tracking
+    loss, or the colour error for colour tracking), the iterations run and the inlier share (colour: the share of the
+    pixels that see the map), and the scene's parameters and field bytes after the frame: they change where the box
+    grew, :mod:`slam.engine.growth`)."""
     import csv
     import io
 
     st = run.state
-    tracked = {t["frame"]: t for t in st.tracking}
+    tracked = {t["frame"]: dict(t, on="depth") for t in st.tracking}
+    for e in st.events:
+        if "color_loss" in e:
+            tracked[e["frame"]] = {"on": "color" if e["color_tracked"] else "prediction", "loss": e["color_loss"],
+                                   "iters": e["color_iters"], "inliers": e["color_share"]}
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["k", "frame", "seconds", "trusted", "tracking_loss", "tracking_iters", "tracking_inliers",
-                "parameters", "field_bytes"])
+    w.writerow(["k", "frame", "seconds", "trusted", "tracked_on", "tracking_loss", "tracking_iters",
+                "tracking_inliers", "parameters", "field_bytes"])
     for k in range(len(st.est)):
         i = int(run.indices[k])
         t = tracked.get(i, {})
         sec = st.frame_times[k] if k < len(st.frame_times) else ""
         size = (st.sizes[k] if k < len(st.sizes) else None) or ("", "")  # None: resumed from an older checkpoint
-        w.writerow([k, i, f"{sec:.4f}" if sec != "" else "", int(st.trusted[k]), t.get("loss", ""), t.get("iters", ""),
-                    t.get("inliers", ""), *size])
+        w.writerow([k, i, f"{sec:.4f}" if sec != "" else "", int(st.trusted[k]), t.get("on", ""), t.get("loss", ""),
+                    t.get("iters", ""), t.get("inliers", ""), *size])
     atomic_write_text(out / "frames.csv", buf.getvalue(), "per-frame table")
 
 
