@@ -105,6 +105,14 @@ def color_backward(weights, rgb, grad_color, grad_weights, grad_rgb):  # pragma:
             grad_rgb[r, n, 2] = g2 * w
 
 
+@njit(nogil=True, cache=True, inline="always")
+def _regions(z, D, T, band):  # pragma: no cover - compiled
+    """``(in free space, band)`` of a sample at depth ``z`` on a ray of measured depth ``D``: band 1 the centre
+    ``|z - D| < band``, 2 the tail (the rest of ``|z - D| <= T``), 0 neither; in the reference's dtype and order."""
+    off = abs(z - D)
+    return z < D - T, (1 if off < band else (2 if off <= T else 0))
+
+
 @njit(nogil=True, cache=True)
 def loss_forward(sdf, z, depth, rendered_depth, rendered_color, color, rows, consts, sums, counts):  # pragma: no cover
     """Per ray, the five terms' squared-error sums and counts, ``sums, counts [R, 5]`` (free space, centre, tail,
@@ -113,7 +121,6 @@ def loss_forward(sdf, z, depth, rendered_depth, rendered_color, color, rows, con
     one = sdf.dtype.type(1.0)
     zero = sdf.dtype.type(0.0)
     T = consts[0]
-    band = consts[1]
     for r in range(sdf.shape[0]):
         for k in range(5):
             sums[r, k] = zero
@@ -129,28 +136,16 @@ def loss_forward(sdf, z, depth, rendered_depth, rendered_color, color, rows, con
         if rows[r] != 2:
             continue
         D = depth[r]
-        front_edge = D - T
-        f = zero
-        ce = zero
-        tl = zero
         for n in range(sdf.shape[1]):
-            zz = z[r, n]
             s = sdf[r, n]
-            off = abs(zz - D)
-            if zz < front_edge:
-                f += (s - one) * (s - one)
+            front, band = _regions(z[r, n], D, T, consts[1])
+            if front:
+                sums[r, 0] += (s - one) * (s - one)
                 counts[r, 0] += 1
-            if off < band:
-                err = zz + s * T - D
-                ce += err * err
-                counts[r, 1] += 1
-            elif off <= T:
-                err = zz + s * T - D
-                tl += err * err
-                counts[r, 2] += 1
-        sums[r, 0] = f
-        sums[r, 1] = ce
-        sums[r, 2] = tl
+            if band:
+                err = z[r, n] + s * T - D
+                sums[r, band] += err * err
+                counts[r, band] += 1
         err = rendered_depth[r] - D
         sums[r, 3] = err * err
         counts[r, 3] = 1
@@ -165,7 +160,6 @@ def loss_backward(sdf, z, depth, rendered_depth, rendered_color, color, rows, co
     zero = sdf.dtype.type(0.0)
     two = sdf.dtype.type(2.0)
     T = consts[0]
-    band = consts[1]
     for r in range(sdf.shape[0]):
         for ch in range(3):
             grad_color[r, ch] = scale[4] * two * (rendered_color[r, ch] - color[r, ch]) if rows[r] >= 1 else zero
@@ -175,17 +169,11 @@ def loss_backward(sdf, z, depth, rendered_depth, rendered_color, color, rows, co
                 grad_sdf[r, n] = zero
             continue
         D = depth[r]
-        front_edge = D - T
         grad_depth[r] = scale[3] * two * (rendered_depth[r] - D)
         for n in range(sdf.shape[1]):
-            zz = z[r, n]
             s = sdf[r, n]
-            off = abs(zz - D)
-            g = zero
-            if zz < front_edge:
-                g += scale[0] * two * (s - one)
-            if off < band:
-                g += scale[1] * two * (zz + s * T - D) * T
-            elif off <= T:
-                g += scale[2] * two * (zz + s * T - D) * T
+            front, band = _regions(z[r, n], D, T, consts[1])
+            g = scale[0] * two * (s - one) if front else zero
+            if band:
+                g += scale[band] * two * (z[r, n] + s * T - D) * T
             grad_sdf[r, n] = g
