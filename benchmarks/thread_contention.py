@@ -1,0 +1,115 @@
+"""Do the tracker and the mapper slow each other, and is it the process they share? (issue 21)
+
+Maps the first ``--warm`` frames at a preset (``profile_slam.warm_calls``), then times whole tracking calls (wall
+clock, one torch thread) three ways, interleaved over ``--repeats`` rounds:
+
+* ``alone``: nothing else running;
+* ``beside a mapping thread``: a second thread of this process runs mapping calls back to back on its own copy of
+  the warmed map, as the loop's parallel mode does (the two share Python's global interpreter lock);
+* ``beside a mapping process``: a separate process (its own interpreter, its own copy of the same warmed map) runs
+  mapping calls back to back, as a mapper in its own process would.
+
+If the thread slows tracking much more than the process does, the lock is what the loop's two threads contend for;
+if both slow it alike, it is the hardware (caches, memory bandwidth). Writes JSON with every call's time.
+
+    python benchmarks/thread_contention.py --data ../shared/data/tum_fr1_rpy_0_124 --out benchmarks/results/thread_contention.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+
+def _warm(args):
+    import torch
+
+    from profile_slam import warm_calls
+
+    torch.set_num_threads(1)
+    return warm_calls(args["preset"], [f"data.path={args['data']}", *args["overrides"]], args["warm"])
+
+
+def _mapping_process(args, ready, stop, count):
+    """A child process: its own warmed map, mapping calls until ``stop`` is set."""
+    _, _, mapping = _warm(args)
+    mapping()
+    ready.set()
+    while not stop.is_set():
+        mapping()
+        count.value += 1
+
+
+def _timed(fn, n):
+    out = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t0)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--preset", default="tum/fr1_rpy-cpu")
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--warm", type=int, default=8)
+    ap.add_argument("--repeats", type=int, default=3, help="rounds of the three settings")
+    ap.add_argument("--calls", type=int, default=3, help="tracking calls timed per setting and round")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("overrides", nargs="*")
+    args = ap.parse_args(argv)
+    spec = {"preset": args.preset, "data": args.data, "warm": args.warm, "overrides": args.overrides}
+
+    from _stamp import stamp
+
+    _, track, _ = _warm(spec)
+    _, _, mapping = _warm(spec)  # its own map: tracking freezes its scene's parameters while it runs
+    track()
+    mapping()
+    ctx = mp.get_context("spawn")
+    times: dict[str, list[float]] = {"alone": [], "beside a mapping thread": [], "beside a mapping process": []}
+    for _ in range(args.repeats):
+        times["alone"] += _timed(track, args.calls)
+
+        stop = threading.Event()
+
+        def loop():
+            while not stop.is_set():
+                mapping()
+
+        worker = threading.Thread(target=loop)
+        worker.start()
+        times["beside a mapping thread"] += _timed(track, args.calls)
+        stop.set()
+        worker.join()
+
+        ready, pstop, count = ctx.Event(), ctx.Event(), ctx.Value("i", 0)
+        proc = ctx.Process(target=_mapping_process, args=(spec, ready, pstop, count))
+        proc.start()
+        ready.wait()
+        times["beside a mapping process"] += _timed(track, args.calls)
+        pstop.set()
+        proc.join()
+    medians = {k: statistics.median(v) for k, v in times.items()}
+    for k, v in medians.items():
+        print(f"tracking call {k}: {1e3 * v:.0f} ms (median of {len(times[k])})")
+    result = {"stamp": stamp(), "command": " ".join(sys.argv), "preset": args.preset, "seconds": times,
+              "median_s": medians}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
