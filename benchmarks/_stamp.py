@@ -51,3 +51,20 @@ def write_block(doc, name: str, text: str) -> None:
     if start not in body or end not in body:
         raise SystemExit(f"{doc}: markers {start} / {end} not found")
     doc.write_text(body[: body.index(start) + len(start)] + "\n" + text + "\n" + body[body.index(end):])
+
+
+def write_timings(out, times: dict, label: str, **fields) -> dict:
+    """Print the median of each list of seconds in ``times`` (``{setting: [s, ...]}``, one line each, prefixed by
+    ``label``) and write them, every value, the stamp, the command line and ``fields`` to the JSON file ``out``."""
+    import json
+    import statistics
+    import sys
+    from pathlib import Path
+
+    medians = {k: statistics.median(v) for k, v in times.items()}
+    for k, v in medians.items():
+        print(f"{label}{k}: {1e3 * v:.1f} ms (median of {len(times[k])})")
+    result = {"stamp": stamp(), "command": " ".join(sys.argv), **fields, "seconds": times, "median_s": medians}
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(json.dumps(result, indent=1))
+    return result

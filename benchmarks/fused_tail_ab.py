@@ -12,8 +12,6 @@ usable ratio; medians per (call, setting). Writes JSON with every repeat.
 from __future__ import annotations
 
 import argparse
-import json
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -35,7 +33,7 @@ def main(argv=None) -> int:
 
     import torch
 
-    from _stamp import stamp
+    from _stamp import write_timings
     from profile_slam import warm_calls
 
     torch.set_num_threads(1)
@@ -49,14 +47,8 @@ def main(argv=None) -> int:
                 t0 = time.thread_time()
                 fn()
                 times.setdefault(f"{name}, fused={fused}", []).append(time.thread_time() - t0)
-    medians = {k: statistics.median(v) for k, v in times.items()}
-    for k, v in medians.items():
-        print(f"{k}: {1e3 * v:.1f} ms a call (median of {len(times[k])})")
-    result = {"stamp": stamp(), "command": " ".join(sys.argv), "preset": args.preset,
-              "representation": args.representation, "warm_frames": args.warm, "seconds": times,
-              "median_s": medians}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=1))
+    write_timings(args.out, times, "", preset=args.preset, representation=args.representation,
+                  warm_frames=args.warm)
     return 0
 
 

@@ -18,9 +18,7 @@ if both slow it alike, it is the hardware (caches, memory bandwidth). Writes JSO
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
-import statistics
 import sys
 import threading
 import time
@@ -71,7 +69,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     spec = {"preset": args.preset, "data": args.data, "warm": args.warm, "overrides": args.overrides}
 
-    from _stamp import stamp
+    from _stamp import write_timings
 
     _, track, _ = _warm(spec)
     _, _, mapping = _warm(spec)  # its own map: tracking freezes its scene's parameters while it runs
@@ -101,13 +99,7 @@ def main(argv=None) -> int:
         times["beside a mapping process"] += _timed(track, args.calls)
         pstop.set()
         proc.join()
-    medians = {k: statistics.median(v) for k, v in times.items()}
-    for k, v in medians.items():
-        print(f"tracking call {k}: {1e3 * v:.0f} ms (median of {len(times[k])})")
-    result = {"stamp": stamp(), "command": " ".join(sys.argv), "preset": args.preset, "seconds": times,
-              "median_s": medians}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=1))
+    write_timings(args.out, times, "tracking call ", preset=args.preset)
     return 0
 
 
