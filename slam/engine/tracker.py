@@ -80,40 +80,61 @@ def track_frame(
     return _track_adam(scene, color, depth, intrinsics, init_pose, cfg, generator, iters, patience)
 
 
+def _best_of_adam(pose0: torch.Tensor, lrs: torch.Tensor, loss_at, iters: int, converged=None):
+    """Adam (betas 0.5, 0.999) from ``pose0`` ``[7]`` with per-entry rates ``lrs`` ``[7]``, keeping the pose of the
+    lowest loss seen *before* each step (best-loss selection, as ESLAM's tracker).
+
+    ``loss_at(pose) -> (loss or None, extra, message)`` is the loss at the pose (None ends the loop with ``message``);
+    ``converged(it, value, best) -> bool``, asked after each loss, ends it early. A non-finite loss or pose ends it.
+
+    Returns:
+        ``(best loss, best pose or None, the best loss's extra, message, iterations run)``.
+    """
+    pose = pose0.clone().requires_grad_(True)
+    opt = VectorAdam(pose, lrs, betas=(0.5, 0.999))
+    best_loss, best_pose, best_extra, message, it = float("inf"), None, float("nan"), "", 0
+    for it in range(1, iters + 1):
+        loss, extra, message = loss_at(pose)
+        if loss is None:
+            break
+        value = float(loss.detach())  # one host sync per iteration
+        if not torch.isfinite(loss):
+            message = "non-finite tracking loss"
+            break
+        done = converged is not None and converged(it, value, best_loss)
+        if value < best_loss:
+            best_loss, best_pose, best_extra = value, pose.detach().clone(), extra
+        if done:
+            break  # converged: no better pose for a while (the best one is returned)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if not bool(torch.isfinite(pose).all()):
+            message = "non-finite pose update"
+            break
+    return best_loss, best_pose, best_extra, message, it
+
+
 def _track_adam(scene, color, depth, intrinsics, init_pose, cfg: Config, generator, iters, patience) -> TrackResult:
     """ESLAM's tracker: Adam over ``(q, t)``, fresh pixels every iteration, the best-loss pose returned."""
     tc = cfg.tracking
     iters, patience = (tc.iters if iters is None else iters), (tc.patience if patience is None else patience)
     device, (H, W) = depth.device, depth.shape
-    pose = init_pose.clone().to(device).requires_grad_(True)  # [qw qx qy qz tx ty tz]
-    lrs = torch.tensor([tc.lr_r] * 4 + [tc.lr_t] * 3, dtype=pose.dtype, device=device)
-    opt = VectorAdam(pose, lrs, betas=(0.5, 0.999))
-    best_loss, best_pose, best_inliers, message = float("inf"), None, float("nan"), ""
-    it = since_best = 0
+    lrs = torch.tensor([tc.lr_r] * 4 + [tc.lr_t] * 3, dtype=init_pose.dtype, device=device)
+    since_best = [0]
+
+    def loss_at(pose):
+        v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
+        return _loss_at(scene, color, depth, intrinsics, pose_to_matrix(pose), cfg, v.to(device), u.to(device),
+                        generator, cfg.rendering.perturb)
+
+    def converged(it, value, best):
+        since_best[0] = 0 if value < best * (1.0 - tc.min_improvement) else since_best[0] + 1
+        return bool(patience) and it >= tc.min_iters and since_best[0] >= patience
+
     with tdfields.frozen(scene):  # no scene gradients; Six-axis caches its planes for this call only
-        for it in range(1, iters + 1):
-            v, u = sample_pixels(H, W, tc.pixels, tc.ignore_edge[0], tc.ignore_edge[1], generator)
-            loss, inliers, message = _loss_at(scene, color, depth, intrinsics, pose_to_matrix(pose),
-                                              cfg, v.to(device), u.to(device), generator, cfg.rendering.perturb)
-            if loss is None:
-                break
-            value = float(loss.detach())
-            if not torch.isfinite(loss):
-                message = "non-finite tracking loss"
-                break
-            since_best = 0 if value < best_loss * (1.0 - tc.min_improvement) else since_best + 1
-            if value < best_loss:
-                best_loss = value
-                best_pose = pose.detach().clone()
-                best_inliers = inliers
-            if patience and it >= tc.min_iters and since_best >= patience:
-                break  # converged: no better pose for `patience` iterations (the best one is returned)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            if not bool(torch.isfinite(pose).all()):
-                message = "non-finite pose update"
-                break
+        best_loss, best_pose, best_inliers, message, it = _best_of_adam(init_pose.to(device), lrs, loss_at, iters,
+                                                                        converged)
     if best_pose is None or not bool(torch.isfinite(best_pose).all()):
         return TrackResult(init_pose.clone(), float("nan"), False, message or "no finite pose", it)
     return TrackResult(normalize_pose(best_pose).cpu(), best_loss, True, message, it, best_inliers)
@@ -193,24 +214,17 @@ def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tens
 
         with torch.no_grad():
             start = _value(loss_at(init_pose, False))
-        pose = init_pose.clone().requires_grad_(True)
         # the rotation only: one frame's colour pins where the camera looks, but barely how far it moved (the
         # parallax of one frame's motion is small), and moving the translation too doubled the error of dropped
         # frames' motion on the fast dev window (docs/slam.md, "Robustness")
-        lrs = torch.tensor([tc.lr_r] * 4 + [0.0] * 3, dtype=pose.dtype, device=device)
-        opt = VectorAdam(pose, lrs, betas=(0.5, 0.999))
-        best_loss, best_pose, message, it = float("inf"), None, "", 0
-        for it in range(1, iters + 1):
+        lrs = torch.tensor([tc.lr_r] * 4 + [0.0] * 3, dtype=init_pose.dtype, device=device)
+
+        def jittered(pose):
             loss = loss_at(pose, cfg.rendering.perturb)
-            if loss is None or not torch.isfinite(loss):
-                message = "too few rays inside the scene box" if loss is None else "non-finite colour loss"
-                break
-            value = float(loss.detach())  # one host sync per iteration
-            if value < best_loss:
-                best_loss, best_pose = value, pose.detach().clone()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+            return loss, None, "" if loss is not None else "too few rays inside the scene box"
+
+        best_loss, best_pose, _, message, it = _best_of_adam(init_pose, lrs, jittered, iters)
+        message = message.replace("tracking loss", "colour loss")
         if best_pose is None or not bool(torch.isfinite(best_pose).all()):
             return TrackResult(init_pose.cpu(), float("nan"), False, message or "no finite pose", it, share), start
         best_pose = normalize_pose(best_pose)
