@@ -80,12 +80,14 @@ def track_frame(
     return _track_adam(scene, color, depth, intrinsics, init_pose, cfg, generator, iters, patience)
 
 
-def _best_of_adam(pose0: torch.Tensor, lrs: torch.Tensor, loss_at, iters: int, converged=None):
+def _best_of_adam(pose0: torch.Tensor, lrs: torch.Tensor, loss_at, iters: int, converged=None,
+                  name: str = "tracking"):
     """Adam (betas 0.5, 0.999) from ``pose0`` ``[7]`` with per-entry rates ``lrs`` ``[7]``, keeping the pose of the
     lowest loss seen *before* each step (best-loss selection, as ESLAM's tracker).
 
     ``loss_at(pose) -> (loss or None, extra, message)`` is the loss at the pose (None ends the loop with ``message``);
-    ``converged(it, value, best) -> bool``, asked after each loss, ends it early. A non-finite loss or pose ends it.
+    ``converged(it, value, best) -> bool``, asked after each loss, ends it early. A non-finite loss or pose ends it
+    (the message names the loss ``name``).
 
     Returns:
         ``(best loss, best pose or None, the best loss's extra, message, iterations run)``.
@@ -99,7 +101,7 @@ def _best_of_adam(pose0: torch.Tensor, lrs: torch.Tensor, loss_at, iters: int, c
             break
         value = float(loss.detach())  # one host sync per iteration
         if not torch.isfinite(loss):
-            message = "non-finite tracking loss"
+            message = f"non-finite {name} loss"
             break
         done = converged is not None and converged(it, value, best_loss)
         if value < best_loss:
@@ -223,8 +225,7 @@ def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tens
             loss = loss_at(pose, cfg.rendering.perturb)
             return loss, None, "" if loss is not None else "too few rays inside the scene box"
 
-        best_loss, best_pose, _, message, it = _best_of_adam(init_pose, lrs, jittered, iters)
-        message = message.replace("tracking loss", "colour loss")
+        best_loss, best_pose, _, message, it = _best_of_adam(init_pose, lrs, jittered, iters, name="colour")
         if best_pose is None or not bool(torch.isfinite(best_pose).all()):
             return TrackResult(init_pose.cpu(), float("nan"), False, message or "no finite pose", it, share), start
         best_pose = normalize_pose(best_pose)
