@@ -92,6 +92,10 @@ def warm_calls(preset: str, overrides: list[str], warm_frames: int):
     system = SLAM(cfg, ds, "cpu")
     for k in range(warm_frames):
         system.step(k)
+    # parallel mode leaves the last calls running on the mapper's thread, on this very scene: finish them and stop
+    # the threads, or the timed calls below race them (a torn `saved` map, and once a corrupted heap)
+    system.finish()
+    system.close()
     k = warm_frames
     frame = ds[system.indices[k]]
     color = torch.as_tensor(frame.color, dtype=torch.float32)
