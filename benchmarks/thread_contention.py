@@ -1,18 +1,21 @@
 """Do the tracker and the mapper slow each other, and is it the process they share? (issue 21)
 
 Maps the first ``--warm`` frames at a preset (``profile_slam.warm_calls``), then times whole tracking calls (wall
-clock, one torch thread) three ways, interleaved over ``--repeats`` rounds:
+clock, one torch thread; ``--timed mapping``: whole mapping calls, the other side of the pair) three ways,
+interleaved over ``--repeats`` rounds:
 
 * ``alone``: nothing else running;
-* ``beside a mapping thread``: a second thread of this process runs mapping calls back to back on its own copy of
-  the warmed map, as the loop's parallel mode does (the two share Python's global interpreter lock);
-* ``beside a mapping process``: a separate process (its own interpreter, its own copy of the same warmed map) runs
-  mapping calls back to back, as a mapper in its own process would.
+* ``beside a ... thread``: a second thread of this process runs the other kind of call back to back on its own copy
+  of the warmed map, as the loop's parallel mode does (the two share Python's global interpreter lock);
+* ``beside a ... process``: a separate process (its own interpreter, its own copy of the same warmed map) runs the
+  other kind of call back to back, as a mapper in its own process would beside the tracker.
 
-If the thread slows tracking much more than the process does, the lock is what the loop's two threads contend for;
-if both slow it alike, it is the hardware (caches, memory bandwidth). Writes JSON with every call's time.
+If the thread slows the timed call much more than the process does, the lock is what the loop's two threads contend
+for; if both slow it alike, it is the hardware (caches, memory bandwidth). Writes JSON with every call's time.
 
     python benchmarks/thread_contention.py --data ../shared/data/tum_fr1_rpy_0_124 --out benchmarks/results/thread_contention.json
+    python benchmarks/thread_contention.py --timed mapping --data ../shared/data/tum_fr1_rpy_0_124 \
+        --out benchmarks/results/thread_contention_mapping.json
 """
 
 from __future__ import annotations
@@ -38,13 +41,14 @@ def _warm(args):
     return warm_calls(args["preset"], [f"data.path={args['data']}", *args["overrides"]], args["warm"])
 
 
-def _mapping_process(args, ready, stop, count):
-    """A child process: its own warmed map, mapping calls until ``stop`` is set."""
-    _, _, mapping = _warm(args)
-    mapping()
+def _other_process(args, ready, stop, count):
+    """A child process: its own warmed map, calls of the kind not timed until ``stop`` is set."""
+    _, track, mapping = _warm(args)
+    other = track if args["timed"] == "mapping" else mapping
+    other()
     ready.set()
     while not stop.is_set():
-        mapping()
+        other()
         count.value += 1
 
 
@@ -63,11 +67,14 @@ def main(argv=None) -> int:
     ap.add_argument("--data", required=True)
     ap.add_argument("--warm", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3, help="rounds of the three settings")
-    ap.add_argument("--calls", type=int, default=3, help="tracking calls timed per setting and round")
+    ap.add_argument("--calls", type=int, default=3, help="calls timed per setting and round")
+    ap.add_argument("--timed", choices=("tracking", "mapping"), default="tracking",
+                    help="which call is timed; the other runs beside it")
     ap.add_argument("--out", required=True)
     ap.add_argument("overrides", nargs="*")
     args = ap.parse_args(argv)
-    spec = {"preset": args.preset, "data": args.data, "warm": args.warm, "overrides": args.overrides}
+    spec = {"preset": args.preset, "data": args.data, "warm": args.warm, "overrides": args.overrides,
+            "timed": args.timed}
 
     from _stamp import write_timings
 
@@ -75,31 +82,34 @@ def main(argv=None) -> int:
     _, _, mapping = _warm(spec)  # its own map: tracking freezes its scene's parameters while it runs
     track()
     mapping()
+    timed, other = (mapping, track) if args.timed == "mapping" else (track, mapping)
+    beside = "tracking" if args.timed == "mapping" else "mapping"
     ctx = mp.get_context("spawn")
-    times: dict[str, list[float]] = {"alone": [], "beside a mapping thread": [], "beside a mapping process": []}
+    keys = ("alone", f"beside a {beside} thread", f"beside a {beside} process")
+    times: dict[str, list[float]] = {k: [] for k in keys}
     for _ in range(args.repeats):
-        times["alone"] += _timed(track, args.calls)
+        times[keys[0]] += _timed(timed, args.calls)
 
         stop = threading.Event()
 
         def loop():
             while not stop.is_set():
-                mapping()
+                other()
 
         worker = threading.Thread(target=loop)
         worker.start()
-        times["beside a mapping thread"] += _timed(track, args.calls)
+        times[keys[1]] += _timed(timed, args.calls)
         stop.set()
         worker.join()
 
         ready, pstop, count = ctx.Event(), ctx.Event(), ctx.Value("i", 0)
-        proc = ctx.Process(target=_mapping_process, args=(spec, ready, pstop, count))
+        proc = ctx.Process(target=_other_process, args=(spec, ready, pstop, count))
         proc.start()
         ready.wait()
-        times["beside a mapping process"] += _timed(track, args.calls)
+        times[keys[2]] += _timed(timed, args.calls)
         pstop.set()
         proc.join()
-    write_timings(args.out, times, "tracking call ", preset=args.preset)
+    write_timings(args.out, times, f"{args.timed} call ", preset=args.preset)
     return 0
 
 
