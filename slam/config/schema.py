@@ -231,6 +231,9 @@ class Config:
     keep_freed_memory: bool = True  # glibc: reuse freed big tensors instead of fresh pages (slam.engine.runtime)
     trim_memory_every: int = num(20, **NONNEG)  # frames between returns of the heap's free pages; 0: never
     parallel: bool = False  # mapping on a worker thread beside the tracker (slam.engine.map_worker)
+    # ours: with parallel, the mapping calls run in a child process instead of a thread (slam.engine.map_process):
+    # the same results; the two no longer share Python's interpreter lock
+    mapper_process: bool = False
     checkpoint_every: int = num(0, **NONNEG)  # frames between checkpoints (0: by time, checkpoint_interval_s)
     checkpoint_interval_s: float = num(60.0, **POSITIVE)  # at most this much work is lost (checkpoint_every: 0)
     representation: str = choice("lrslam", REPRESENTATIONS)

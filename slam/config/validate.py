@@ -180,5 +180,8 @@ def _validate(cfg: Config) -> None:
     if spill and not os.path.isdir(os.path.expanduser(spill)):
         raise SlamInputError(f"config key 'mapping.keyframe_spill_dir' = {spill!r} is not a directory "
                              "(\"\" uses the system's temporary directory)")
+    if cfg.mapper_process and not cfg.parallel:
+        raise SlamInputError("config key 'mapper_process' = true needs 'parallel' = true (sequential mode maps inline, "
+                             "in the tracker's own process)")
     if len(cfg.tracking.ignore_edge) != 2:
         raise SlamInputError(f"config key 'tracking.ignore_edge' must be [rows, columns], got {cfg.tracking.ignore_edge!r}")

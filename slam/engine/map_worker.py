@@ -16,6 +16,10 @@ the mapper thread is already on to the next call or idle. Only the worker touche
 while a call runs; anything else that reads them (a checkpoint, a preview mesh) first waits with
 :meth:`MapWorker.wait_idle`. So does a growth of the scene box (:meth:`MapWorker.grow`), which grows the mapper's
 map, the tracker's copy and the maps pending calls left by the same samples, so the schedule is kept through it.
+
+With ``mapper_process: true`` the calls run in a child process instead of a thread (:mod:`slam.engine.map_process`):
+the same schedule and results, and ``scene`` and the keyframes here become mirrors the worker brings up to date as
+each call's result arrives (the map it left, its keyframe and BA poses, the mapping random stream).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from dataclasses import dataclass
 import torch
 
 from slam.engine.keyframes import Keyframe
+from slam.engine.map_process import MapProcess
 from slam.engine.mapper import MapResult, map_frame
 from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
 
@@ -65,7 +70,8 @@ class MapWorker:
         keyframes: the :class:`slam.engine.keyframes.KeyframeStore` (touched only by mapping calls).
         cfg, intrinsics: the run's config and working-image intrinsics.
         generator: CPU generator for the mapper's pixel and window draws.
-        parallel: run calls on a worker thread (else inline).
+        parallel: run calls beside the tracker (else inline): on a worker thread, or with ``cfg.mapper_process`` in
+            a child process.
     """
 
     def __init__(self, scene, keyframes, cfg, intrinsics, generator: torch.Generator, parallel: bool):
@@ -77,12 +83,17 @@ class MapWorker:
         self.parallel = parallel
         self.lag = max(cfg.mapping.every_frame, 2) if parallel else 1
         self.track_scene = copy.deepcopy(scene) if parallel else scene
-        self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map") if parallel else None
+        self.process = MapProcess(cfg, intrinsics, scene.aabb.device, self._arrived) if (
+            parallel and cfg.mapper_process) else None
+        self._pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map")
+                      if parallel and self.process is None else None)
         self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
         self._applied_any = False
         self._abort = threading.Event()  # set by close(abort=True): a call in progress stops at its next iteration
         self.wait_s = 0.0  # time the tracker spent waiting for the mapper
         self.snapshot_s = 0.0  # time spent taking and loading snapshots
+        self.map_s = 0.0  # wall time of the mapping calls themselves (wherever they ran)
+        self.calls = 0
 
     # ---------------------------------------------------------------------------------------------- calls
     def _run(self, job: MapJob) -> MapDone:
@@ -97,11 +108,38 @@ class MapWorker:
             t1 = time.perf_counter()
             snap = {name: t.detach().clone() for name, t in self.scene.state_dict().items()}
             self.snapshot_s += time.perf_counter() - t1
-        return MapDone(job, res, time.perf_counter() - t0, snap)
+        seconds = time.perf_counter() - t0
+        self.map_s += seconds
+        self.calls += 1
+        return MapDone(job, res, seconds, snap)
+
+    def _arrived(self, job: MapJob, reply: dict) -> MapDone:
+        """A call of the child process finished (in order): make the mirrors what the child's are now."""
+        t0 = time.perf_counter()
+        res = reply["result"]
+        if job.keyframe and res.ok:
+            pose = res.pose if job.k > 0 else job.pose
+            self.keyframes.add(Keyframe(job.k, job.color.cpu(), job.depth.cpu(), pose.cpu().clone()))
+        if len(self.keyframes) != len(reply["poses"]):
+            raise RuntimeError(f"the mapping process holds {len(reply['poses'])} keyframes, the loop "
+                               f"{len(self.keyframes)}")
+        for kf, pose in zip(self.keyframes.frames, reply["poses"]):
+            kf.pose = pose.clone()
+        self.gen.set_state(reply["gen"])
+        with torch.no_grad():
+            self.scene.load_state_dict(reply["snapshot"])
+        self.snapshot_s += time.perf_counter() - t0
+        self.map_s += reply["seconds"]
+        self.calls += 1
+        return MapDone(job, res, reply["seconds"], reply["snapshot"])
 
     def submit(self, job: MapJob) -> None:
         """Queue a call (run it now, in sequential mode)."""
-        if self.parallel:
+        if self.process is not None:
+            if not self.process.started:
+                self.process.start(self.scene, self.keyframes, self.gen)
+            self._queue.append((job.k, self.process.submit(job)))
+        elif self.parallel:
             self._queue.append((job.k, self._pool.submit(self._run, job)))
         else:
             self._queue.append((job.k, self._run(job)))
@@ -161,6 +199,8 @@ class MapWorker:
         self.wait_idle()
         pads = plan_growth(self.scene, lower, upper)
         apply_growth(self.scene, pads)
+        if self.process is not None and self.process.started:
+            self.process.grow(pads)
         if self.parallel:
             apply_growth(self.track_scene, pads)
             for _, item in self._queue:
@@ -202,10 +242,14 @@ class MapWorker:
             r = p["result"]
             res = MapResult(r["pose"], r["window"], r["loss"], r["ok"], r["skipped"])
             self._queue.append((p["k"], MapDone(job, res, p["seconds"], p["snapshot"])))
+        if self.process is not None:  # a child started before would hold another map: the next call starts anew
+            self.process.close()
 
     def close(self, abort: bool = False) -> None:
         """Shut the worker down; ``abort``: end a call in progress at its next iteration and do not wait for it
         (its work is lost; the map is then unusable, so nothing may be saved from it afterwards)."""
+        if self.process is not None:
+            self.process.close(abort=abort)
         if self._pool is not None:
             if abort:
                 self._abort.set()

@@ -141,7 +141,7 @@ def load_run(path: Path, cfg=None) -> dict:
 
 
 #: keys a resumed run may change: they decide when the run stops or writes, never what it computes
-RESUME_KEYS = ("device", "data.max_bad_fraction", "data.prefetch", "checkpoint_every", "checkpoint_interval_s")
+RESUME_KEYS = ("device", "mapper_process", "data.max_bad_fraction", "data.prefetch", "checkpoint_every", "checkpoint_interval_s")
 
 
 def config_differences(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> list[str]:

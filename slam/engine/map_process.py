@@ -1,0 +1,225 @@
+"""The mapper in its own process (``mapper_process: true`` with ``parallel: true``; ESLAM's design).
+
+In parallel mode the tracker and the mapper are two threads of one Python process, and every torch op and numba
+kernel call takes the interpreter's lock: a tracking call beside a mapping thread took 19 % longer than alone and a
+mapping call beside a tracking thread 9 % longer, against 2 % and none beside a separate process
+(``benchmarks/thread_contention.py``, docs/benchmarks.md). Here the mapping calls run in a child process instead,
+on a replica of the map and the keyframes that the parent keeps in step:
+
+* the child starts at the first call from the parent's map, keyframes and mapping random stream as they are then
+  (a fresh run's initial map, or a resumed run's);
+* every call sends the job (frame, pose, flags) and gets back what :class:`slam.engine.map_worker.MapWorker` needs:
+  the result, the map the call left (the snapshot the thread mode takes too), the random stream's state, and the
+  keyframes' poses (BA refines them); the parent then makes the same keyframe store change the child made, so
+  both stores hold the same keyframes with the same poses, and its own map becomes the child's;
+* a growth of the map's box is sent between calls and applied to the replica by the same samples.
+
+The results are the thread mode's, bit for bit (same code, same inputs, same order; tested), so everything the
+schedule promises holds. Messages are pickled by value over a pipe (no shared-memory handles to leak on long runs;
+a map is a few MB). The child ignores SIGINT: a Ctrl-C is the parent's to handle (it finishes the frame and waits
+for the call in flight before saving). If the child fails, the call's ``result()`` raises with its traceback.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import pickle
+import queue
+import signal
+import threading
+import time
+import traceback
+
+import torch
+
+__all__ = ["MapProcess"]
+
+
+def _serve(conn, cfg, intr, device: str) -> None:
+    """The child: builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from slam.engine.keyframes import Keyframe, KeyframeStore
+    from slam.engine.mapper import map_frame
+    from slam.engine.runtime import keep_freed_memory, set_threads
+    from slam.model.growth import apply_growth, fit_to_state
+    from slam.model.scene import SceneModel
+
+    set_threads(cfg.threads)
+    if cfg.keep_freed_memory:
+        keep_freed_memory()
+    scene = keyframes = None
+    gen = torch.Generator()
+    while True:
+        try:
+            kind, body = pickle.loads(conn.recv_bytes())
+        except EOFError:  # the parent is gone
+            return
+        if kind == "close":
+            return
+        try:
+            if kind == "init":
+                scene = SceneModel(cfg, body["aabb"]).to(device)
+                with torch.no_grad():
+                    fit_to_state(scene, body["scene"])
+                    scene.load_state_dict(body["scene"])
+                keyframes = KeyframeStore.for_mapping(cfg.mapping)
+                cap, keyframes.max_keyframes = keyframes.max_keyframes, 0  # the parent's are the ones kept
+                for k, color, depth, pose in body["keyframes"]:
+                    keyframes.add(Keyframe(k, color, depth, pose))
+                keyframes.max_keyframes = cap
+                gen.set_state(body["gen"])
+                reply = ("ready", None)
+            elif kind == "grow":
+                apply_growth(scene, body)
+                reply = ("grown", None)
+            else:  # "map"
+                k, color, depth, pose, first, keyframe = body
+                t0 = time.perf_counter()
+                res = map_frame(scene, k, color.to(device), depth.to(device), pose.to(device), intr, keyframes, cfg,
+                                gen, first=first)
+                if keyframe and res.ok:
+                    keyframes.add(Keyframe(k, color, depth, (res.pose if k > 0 else pose).cpu().clone()))
+                seconds = time.perf_counter() - t0
+                res.pose = res.pose.cpu()
+                snap = {name: t.detach().cpu().clone() for name, t in scene.state_dict().items()}
+                reply = ("done", {"result": res, "seconds": seconds, "snapshot": snap, "gen": gen.get_state(),
+                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7)})
+        except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
+            reply = ("error", traceback.format_exc())
+        conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+class _Call:
+    """A submitted call: ``result()`` waits for it (and, in order, for every earlier one) like a future."""
+
+    def __init__(self, owner: "MapProcess", job):
+        self.owner, self.job, self._done = owner, job, None
+
+    def result(self):
+        while self._done is None:
+            self.owner._receive()
+        return self._done
+
+
+class MapProcess:
+    """The child process and the pipe to it, for :class:`slam.engine.map_worker.MapWorker`.
+
+    Args:
+        cfg, intrinsics, device: the run's config, working-image intrinsics and device (the child's map lives there).
+        arrived: called in the parent with each finished call's ``(job, reply)`` in submission order, before its
+            ``result()`` returns: the worker mirrors the child's map, keyframes and random stream there.
+    """
+
+    def __init__(self, cfg, intrinsics, device, arrived):
+        self.cfg, self.intr, self.device, self.arrived = cfg, intrinsics, str(device), arrived
+        self._proc = self._conn = self._reader = self._writer = None
+        self._replies: queue.Queue = queue.Queue()
+        self._outbox: queue.Queue = queue.Queue()
+        self._waiting: list[_Call] = []
+
+    @property
+    def started(self) -> bool:
+        return self._proc is not None
+
+    def start(self, scene, keyframes, generator: torch.Generator) -> None:
+        """Start the child with a replica of ``scene``, ``keyframes`` and ``generator`` as they are now."""
+        ctx = multiprocessing.get_context("spawn")  # a fork would copy the parent's threads' locks mid-use
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(child, self.cfg, self.intr, self.device),
+                                 name="lrslam-map", daemon=True)
+        self._proc.start()
+        child.close()
+        # the pipe is read and written on threads of their own: a map or a frame is larger than the pipe's buffer,
+        # so a write waits until the other side reads, which the child does only between calls (the tracker would
+        # wait for the call in flight at every submit), and two writers facing each other would wait forever
+        self._replies, self._outbox = queue.Queue(), queue.Queue()
+        self._reader = threading.Thread(target=self._read, args=(self._conn, self._replies), name="lrslam-map-in",
+                                        daemon=True)
+        self._writer = threading.Thread(target=self._write, args=(self._conn, self._outbox), name="lrslam-map-out",
+                                        daemon=True)
+        self._reader.start()
+        self._writer.start()
+        kfs = [(kf.index, *kf.images(), kf.pose.clone()) for kf in keyframes.frames]
+        state = {name: t.detach().cpu() for name, t in scene.state_dict().items()}
+        self._send("init", {"aabb": scene.aabb.detach().cpu(), "scene": state, "keyframes": kfs,
+                            "gen": generator.get_state()})
+        self._expect("ready")
+
+    def submit(self, job) -> _Call:
+        """Queue a mapping call (a :class:`slam.engine.map_worker.MapJob`; its images travel on the CPU)."""
+        call = _Call(self, job)
+        self._send("map", (job.k, job.color.cpu(), job.depth.cpu(), job.pose.cpu(), job.first, job.keyframe))
+        self._waiting.append(call)
+        return call
+
+    def grow(self, pads) -> None:
+        """Grow the replica (every call submitted before has finished: the worker waited)."""
+        self._send("grow", pads)
+        self._expect("grown")
+
+    def close(self, abort: bool = False) -> None:
+        """End the child: after its queued calls, or at once (``abort``: their work is lost)."""
+        if self._proc is None:
+            return
+        if abort:
+            self._proc.terminate()
+        else:
+            self._send("close", None)  # after the calls queued, as the thread's pool finishes them
+        self._proc.join(timeout=None if not abort else 5)
+        self._conn.close()
+        self._outbox.put(None)
+        self._writer.join(timeout=5)
+        self._reader.join(timeout=5)
+        self._proc = self._conn = self._reader = self._writer = None
+        self._waiting = []
+
+    # ------------------------------------------------------------------------------------------------- pipe
+    def _send(self, kind: str, body) -> None:
+        self._outbox.put(pickle.dumps((kind, body), protocol=pickle.HIGHEST_PROTOCOL))
+
+    @staticmethod
+    def _write(conn, outbox: queue.Queue) -> None:
+        while (data := outbox.get()) is not None:
+            try:
+                conn.send_bytes(data)
+            except OSError:  # the child is gone: the reader reports it
+                return
+
+    @staticmethod
+    def _read(conn, replies: queue.Queue) -> None:
+        while True:
+            try:
+                replies.put(conn.recv_bytes())
+            except (EOFError, OSError):
+                replies.put(None)
+                return
+
+    def _recv(self):
+        data = self._replies.get()
+        if data is None:
+            self._replies.put(None)  # every later read sees the end too
+        try:
+            if data is None:
+                raise EOFError
+            kind, body = pickle.loads(data)
+        except EOFError:
+            self._proc.join(timeout=5)
+            raise RuntimeError(f"the mapping process ended unexpectedly (exit code {self._proc.exitcode})") from None
+        if kind == "error":
+            raise RuntimeError(f"the mapping process failed:\n{body}")
+        return kind, body
+
+    def _expect(self, what: str) -> None:
+        while self._waiting:  # replies come in order: calls sent before this message answer first
+            self._receive()
+        kind, _ = self._recv()
+        if kind != what:
+            raise RuntimeError(f"the mapping process answered {kind!r} where {what!r} was due")
+
+    def _receive(self) -> None:
+        call = self._waiting[0]
+        kind, body = self._recv()
+        if kind != "done":
+            raise RuntimeError(f"the mapping process answered {kind!r} where a mapping call was due")
+        self._waiting.pop(0)
+        call._done = self.arrived(call.job, body)
