@@ -116,6 +116,30 @@ def test_upsample_can_reset_the_factors_state_in_the_same_optimizer():
         enc.upsample_grid(17, optimizer=opt, adam_state="drop")
 
 
+def test_the_colour_head_in_bfloat16_keeps_float32_parameters_names_and_outputs():
+    """``head_dtype: bfloat16`` (``autocast_head``): TensoRF's MLP gives float32 colours close to the float32 MLP's
+    (bfloat16 keeps 8 bits of mantissa), its gradients reach the float32 parameters, and its parameters keep their
+    names (checkpoints load either way)."""
+    from nerfstudio.field_components.mlp import MLP
+
+    from tdfields.integrations.nerfstudio_model import autocast_head
+
+    torch.manual_seed(0)
+    ref = MLP(in_dim=150, num_layers=2, layer_width=128, out_activation=torch.nn.ReLU())
+    ours = copy.deepcopy(ref)
+    autocast_head(ours, torch.bfloat16)
+    x = torch.rand(4096, 150)
+    a, b = ref(x), ours(x)
+    assert b.dtype == torch.float32 and a.shape == b.shape
+    assert (a - b).abs().max() <= 0.02 * a.abs().max()
+    a.sum().backward()
+    b.sum().backward()
+    assert [n for n, _ in ref.named_parameters()] == [n for n, _ in ours.named_parameters()]
+    for (n, p), q in zip(ref.named_parameters(), ours.parameters()):
+        assert q.dtype == torch.float32 and q.grad.dtype == torch.float32
+        assert torch.allclose(q.grad, p.grad, rtol=0.05, atol=0.02 * float(p.grad.abs().max())), n
+
+
 def test_missing_fields_are_refused():
     with pytest.raises(TypeError, match="holds no tdfields.Field"):
         TDFieldsEncoding(torch.nn.Linear(3, 2))
