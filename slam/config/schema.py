@@ -103,7 +103,7 @@ class RenderingConfig:
     perturb: bool = True
     color_cutoff: float = num(0.0, lo=0, hi=1, hi_open=True)
     # ours (slam/core/fused_render.py): compositing, the colour sum and the five loss terms as numba kernels on the
-    # CPU (the PyTorch ops elsewhere, and with TDFIELDS_BACKEND=torch); same values to a few ulp. Off: 6-7 % off a
+    # CPU (the PyTorch ops elsewhere, and with TDFIELDS_BACKEND=torch); same values to a few ulp. Off: 2-6 % off a
     # call alone, no measurable change of the loop's frame time (docs/benchmarks.md, "The fused render tail")
     fused: bool = False
 

@@ -1,10 +1,11 @@
 """The mapper in its own process (``mapper_process: true`` with ``parallel: true``; ESLAM's design).
 
 In parallel mode the tracker and the mapper are two threads of one Python process, and every torch op and numba
-kernel call takes the interpreter's lock: a tracking call beside a mapping thread took 19 % longer than alone and a
-mapping call beside a tracking thread 9 % longer, against 2 % and none beside a separate process
-(``benchmarks/thread_contention.py``, docs/benchmarks.md). Here the mapping calls run in a child process instead,
-on a replica of the map and the keyframes that the parent keeps in step:
+kernel call takes the interpreter's lock: a tracking call beside a mapping thread took 8 % longer than alone and a
+mapping call beside a tracking thread 18 % longer, against -6 % and +7 % beside a separate process
+(``benchmarks/thread_contention.py``; in the loop the frame time did not measurably change, docs/benchmarks.md).
+Here the mapping calls run in a child process instead, on a replica of the map and the keyframes that the parent
+keeps in step:
 
 * the child starts at the first call from the parent's map, keyframes and mapping random stream as they are then
   (a fresh run's initial map, or a resumed run's);
@@ -39,7 +40,7 @@ def _serve(conn, cfg, intr, device: str) -> None:
     """The child: builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.engine.mapper import map_frame
+    from slam.engine.mapper import keep_keyframe, map_frame
     from slam.engine.runtime import keep_freed_memory, set_threads
     from slam.model.growth import apply_growth, fit_to_state
     from slam.model.scene import SceneModel
@@ -77,8 +78,7 @@ def _serve(conn, cfg, intr, device: str) -> None:
                 t0 = time.perf_counter()
                 res = map_frame(scene, k, color.to(device), depth.to(device), pose.to(device), intr, keyframes, cfg,
                                 gen, first=first)
-                if keyframe and res.ok:
-                    keyframes.add(Keyframe(k, color, depth, (res.pose if k > 0 else pose).cpu().clone()))
+                keep_keyframe(keyframes, k, color, depth, pose, res, keyframe)
                 seconds = time.perf_counter() - t0
                 res.pose = res.pose.cpu()
                 snap = {name: t.detach().cpu().clone() for name, t in scene.state_dict().items()}
@@ -196,15 +196,11 @@ class MapProcess:
 
     def _recv(self):
         data = self._replies.get()
-        if data is None:
+        if data is None:  # the reader saw the pipe close
             self._replies.put(None)  # every later read sees the end too
-        try:
-            if data is None:
-                raise EOFError
-            kind, body = pickle.loads(data)
-        except EOFError:
             self._proc.join(timeout=5)
-            raise RuntimeError(f"the mapping process ended unexpectedly (exit code {self._proc.exitcode})") from None
+            raise RuntimeError(f"the mapping process ended unexpectedly (exit code {self._proc.exitcode})")
+        kind, body = pickle.loads(data)
         if kind == "error":
             raise RuntimeError(f"the mapping process failed:\n{body}")
         return kind, body

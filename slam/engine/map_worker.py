@@ -32,9 +32,8 @@ from dataclasses import dataclass
 
 import torch
 
-from slam.engine.keyframes import Keyframe
 from slam.engine.map_process import MapProcess
-from slam.engine.mapper import MapResult, map_frame
+from slam.engine.mapper import MapResult, keep_keyframe, map_frame
 from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
 
 
@@ -100,9 +99,7 @@ class MapWorker:
         t0 = time.perf_counter()
         res = map_frame(self.scene, job.k, job.color, job.depth, job.pose, self.intr, self.keyframes, self.cfg,
                         self.gen, first=job.first, should_stop=self._abort.is_set)
-        pose = res.pose if (res.ok and job.k > 0) else job.pose
-        if job.keyframe and res.ok:
-            self.keyframes.add(Keyframe(job.k, job.color.cpu(), job.depth.cpu(), pose.cpu().clone()))
+        keep_keyframe(self.keyframes, job.k, job.color, job.depth, job.pose, res, job.keyframe)
         snap = None
         if self.parallel:
             t1 = time.perf_counter()
@@ -117,9 +114,7 @@ class MapWorker:
         """A call of the child process finished (in order): make the mirrors what the child's are now."""
         t0 = time.perf_counter()
         res = reply["result"]
-        if job.keyframe and res.ok:
-            pose = res.pose if job.k > 0 else job.pose
-            self.keyframes.add(Keyframe(job.k, job.color.cpu(), job.depth.cpu(), pose.cpu().clone()))
+        keep_keyframe(self.keyframes, job.k, job.color, job.depth, job.pose, res, job.keyframe)
         if len(self.keyframes) != len(reply["poses"]):
             raise RuntimeError(f"the mapping process holds {len(reply['poses'])} keyframes, the loop "
                                f"{len(self.keyframes)}")

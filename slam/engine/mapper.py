@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from slam.config import Config
-from slam.engine.keyframes import KeyframeStore, keyframe_matrices, overlapping_keyframes, select_window
+from slam.engine.keyframes import Keyframe, KeyframeStore, keyframe_matrices, overlapping_keyframes, select_window
 from slam.core.losses import total_loss
 from slam.core.optim import adam
 from slam.core.camera import sample_pixels
@@ -134,6 +134,16 @@ def _write_back(cam, free, window: list[int], keyframes: KeyframeStore, pose):
         else:
             refined = new[k].clone()
     return refined
+
+
+def keep_keyframe(keyframes: KeyframeStore, index: int, color: torch.Tensor, depth: torch.Tensor, pose: torch.Tensor,
+                  result: MapResult, keyframe: bool) -> None:
+    """After the mapping call of frame ``index``: store it in ``keyframes`` (images on the CPU, with the call's
+    BA-refined pose, or ``pose`` ``[7]`` for frame 0) when the schedule made it a keyframe and the call took a
+    step. The one rule for every place a call runs (thread, inline, the mapper's process), so their stores agree."""
+    if keyframe and result.ok:
+        kept = result.pose if index > 0 else pose
+        keyframes.add(Keyframe(index, color.cpu(), depth.cpu(), kept.cpu().clone()))
 
 
 def map_frame(

@@ -140,8 +140,10 @@ def load_run(path: Path, cfg=None) -> dict:
     return ckpt
 
 
-#: keys a resumed run may change: they decide when the run stops or writes, never what it computes
-RESUME_KEYS = ("device", "mapper_process", "data.max_bad_fraction", "data.prefetch", "checkpoint_every", "checkpoint_interval_s")
+#: keys a resumed run may change: they decide where the run computes and when it stops or writes, never what it
+#: computes
+RESUME_KEYS = ("device", "mapper_process", "data.max_bad_fraction", "data.prefetch", "checkpoint_every",
+               "checkpoint_interval_s")
 
 
 def config_differences(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> list[str]:
