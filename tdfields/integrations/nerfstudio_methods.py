@@ -5,9 +5,13 @@
 | ``tdfields-cp`` | CP, rank 96, 1 channel | CP, rank 64, 48 channels |
 | ``tdfields-six-axis`` | Six-axis, rank 48, 1 channel | Six-axis, rank 32, 48 channels |
 | ``tdfields-hybrid`` | CP, rank 96, 1 channel | Six-axis, rank 32, 48 channels (LRSLAM's pairing) |
+| ``tdfields-vm`` | VM, rank 16, 1 channel | VM, rank 1, 48 channels (TensoRF's own factors) |
 
-The density and appearance fields of every method have ``288 n`` and ``9216 n`` parameters for ``n`` samples per
-axis (a cube box; 608,256 at n = 64, where nerfstudio's TensoRF has 798,720), so the three have equal sizes.
+The density and appearance fields of the first three have ``288 n`` and ``9216 n`` parameters for ``n`` samples
+per axis (a cube box; 608,256 at n = 64), so those three have equal sizes; ``tdfields-vm`` has nerfstudio's
+TensoRF's factors and its parameter count (798,720 at n = 64) on tdfields' kernels.
+``--pipeline.model.colour-head deferred`` runs the colour MLP once per ray instead of once per sample
+(:mod:`tdfields.integrations.nerfstudio_deferred`; measured in docs/nerf.md).
 Everything else is nerfstudio's ``tensorf`` method (optimizers, schedules, upsampling at 2000-7000 steps from 128
 to 300 samples, 30000 steps), except: the data parser is nerfstudio's own
 format (``transforms.json``), the data manager loads rays in the training process (nerfstudio's TensoRF uses a
@@ -39,7 +43,7 @@ from nerfstudio.models.tensorf import TensoRFModelConfig
 from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
-__all__ = ["trainer_config", "tdfields_cp", "tdfields_six_axis", "tdfields_hybrid", "tensorf_no_lpips"]
+__all__ = ["trainer_config", "tdfields_cp", "tdfields_six_axis", "tdfields_hybrid", "tdfields_vm", "tensorf_no_lpips"]
 
 
 def trainer_config(method_name: str, model: ModelConfig) -> TrainerConfig:
@@ -84,6 +88,9 @@ tdfields_six_axis = _tdfields_method(
 tdfields_hybrid = _tdfields_method(
     "tdfields-hybrid", ("cp", 96), ("six_axis", 32),
     "TensoRF on tdfields CP density + Six-axis appearance (LRSLAM's pairing); upsampling in the same optimizer")
+tdfields_vm = _tdfields_method(
+    "tdfields-vm", ("vector_matrix", 16), ("vector_matrix", 1),
+    "TensoRF's VM factors (and parameter count) on tdfields fields; upsampling in the same optimizer")
 tensorf_no_lpips = MethodSpecification(
     config=trainer_config("tensorf-no-lpips", TensoRFModelConfig(
         _target=NoLPIPSTensoRFModel, regularization="tv", camera_optimizer=CameraOptimizerConfig(mode="off"))),

@@ -20,6 +20,7 @@ import torch
 
 # first: without nerfstudio its ImportError names the extra to install
 from tdfields.integrations.nerfstudio import TDFieldsEncoding  # isort: skip
+from tdfields.integrations.nerfstudio_deferred import deferred_outputs  # isort: skip
 
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.field_components.encodings import NeRFEncoding, TensorCPEncoding, TensorVMEncoding, TriplaneEncoding
@@ -176,6 +177,9 @@ class TDFieldsModelConfig(TensoRFModelConfig):
     head_dtype: str = "float32"
     """float32, or bfloat16: the colour MLP's two layers under torch.autocast (a third of TensoRF's step is that MLP;
     bfloat16 matrix products are ~3x faster on CPUs with AMX, slower on CPUs without bfloat16 units)"""
+    colour_head: str = "per_sample"
+    """per_sample (TensoRF: the MLP colours every fine sample, the colours are composited) or deferred (the
+    appearance features are composited and the MLP runs once per ray: tdfields.integrations.nerfstudio_deferred)"""
     upsample_adam_state: str = "reset"
     """at an upsample, Adam's state of the factors is reset (fresh moments, as nerfstudio's new optimizer has) or
     keep (resampled and rescaled, step count kept); the optimizer itself is kept either way"""
@@ -191,6 +195,13 @@ class TDFieldsModel(NoLPIPSTensoRFModel):
         super().populate_modules()
         if self.config.head_dtype != "float32" and not self.config.use_sh:
             autocast_head(self.field.mlp_head, getattr(torch, self.config.head_dtype))
+
+    def get_outputs(self, ray_bundle):
+        """TensoRF's outputs for ``R`` rays (``rgb [R, 3]``, ``accumulation [R, 1]``, ``depth [R, 1]``), the colour
+        head per sample or, with ``colour_head: deferred``, per ray (``nerfstudio_deferred.deferred_outputs``)."""
+        if self.config.colour_head == "deferred":
+            return deferred_outputs(self, ray_bundle)
+        return super().get_outputs(ray_bundle)
 
     def field_spec(self, which: str) -> dict:
         """The tdfields spec of the ``density`` or ``appearance`` field: the scene box, ``init_resolution``."""
@@ -215,6 +226,11 @@ class TDFieldsModel(NoLPIPSTensoRFModel):
             raise ValueError(f"upsample_adam_state {self.config.upsample_adam_state!r}: choose keep or reset")
         if self.config.head_dtype not in ("float32", "bfloat16"):
             raise ValueError(f"head_dtype {self.config.head_dtype!r}: choose float32 or bfloat16")
+        if self.config.colour_head not in ("per_sample", "deferred"):
+            raise ValueError(f"colour_head {self.config.colour_head!r}: choose per_sample or deferred")
+        if self.config.colour_head == "deferred" and (self.config.use_sh or self.config.use_gradient_scaling):
+            raise ValueError("colour_head deferred runs the MLP head per ray: it takes neither use_sh nor "
+                             "use_gradient_scaling")
         if self.config.regularization not in ("none", "l1"):
             raise ValueError(f"regularization {self.config.regularization!r}: tdfields models take none or l1")
         return TDFieldsEncoding(self.field_spec("density")), TDFieldsEncoding(self.field_spec("appearance"))

@@ -140,6 +140,19 @@ def test_the_colour_head_in_bfloat16_keeps_float32_parameters_names_and_outputs(
         assert torch.allclose(q.grad, p.grad, rtol=0.05, atol=0.02 * float(p.grad.abs().max())), n
 
 
+@pytest.mark.parametrize("rank, channels, components", [(16, 1, 16), (1, 48, 48)], ids=["density", "appearance"])
+def test_tdfields_vm_has_tensorfs_parameter_count(rank, channels, components):
+    """``tdfields-vm``'s fields are TensoRF's VM factors: as many parameters as nerfstudio's ``TensorVMEncoding``
+    with TensoRF's components (16 density, 48 colour), at 64 samples per axis."""
+    from nerfstudio.field_components.encodings import TensorVMEncoding
+
+    ours = TDFieldsEncoding({"kind": "vector_matrix", "aabb": [[-1, 1]] * 3, "grid_shape": [64, 64, 64],
+                             "channels": channels, "rank": rank})
+    theirs = TensorVMEncoding(resolution=64, num_components=components)
+    count = sum(p.numel() for p in ours.parameters())
+    assert count == sum(p.numel() for p in theirs.parameters()) == 3 * components * (64 * 64 + 64)
+
+
 def test_missing_fields_are_refused():
     with pytest.raises(TypeError, match="holds no tdfields.Field"):
         TDFieldsEncoding(torch.nn.Linear(3, 2))
@@ -160,10 +173,10 @@ def room(tmp_path_factory) -> Path:
 STEPS, UPSAMPLE_AT = 60, 30
 
 
-def hybrid_config(room: Path, out: Path, steps: int, adam_state: str):
+def hybrid_config(room: Path, out: Path, steps: int, adam_state: str, colour_head: str = "per_sample"):
     """``ns-train tdfields-hybrid``'s config at toy sizes: 256 rays of 48 + 24 samples a step, 12 -> 24 samples per
-    axis at step 30 (Adam's state of the factors kept or reset), no viewer, no evaluation, a checkpoint at the
-    end."""
+    axis at step 30 (Adam's state of the factors kept or reset), the colour head per sample or deferred, no viewer,
+    no evaluation, a checkpoint at the end."""
     config = copy.deepcopy(tdfields_hybrid.config)
     config.output_dir = out
     config.vis = "tensorboard"  # no viewer server; evaluation is switched off below
@@ -178,6 +191,7 @@ def hybrid_config(room: Path, out: Path, steps: int, adam_state: str):
     model.init_resolution, model.final_resolution, model.upsampling_iters = 12, 24, (UPSAMPLE_AT,)
     model.num_uniform_samples, model.num_samples = 48, 24
     model.upsample_adam_state = adam_state
+    model.colour_head = colour_head
     config.set_timestamp()
     return config
 
@@ -219,10 +233,12 @@ def steps_in_state(adam_state: str, steps: int) -> int:
     return steps if adam_state == "keep" else steps - UPSAMPLE_AT - 1
 
 
-@pytest.fixture(scope="module", params=["reset", "keep"])
+@pytest.fixture(scope="module", params=[("reset", "per_sample"), ("keep", "per_sample"), ("reset", "deferred")],
+                ids=["reset", "keep", "deferred"])
 def trained(request, room, tmp_path_factory):
-    config = hybrid_config(room, tmp_path_factory.mktemp("ns_out"), STEPS, request.param)
-    return (request.param, *train(config))
+    adam_state, colour_head = request.param
+    config = hybrid_config(room, tmp_path_factory.mktemp("ns_out"), STEPS, adam_state, colour_head)
+    return (adam_state, *train(config))
 
 
 def test_tdfields_hybrid_trains_and_upsamples_in_its_optimizer(trained):
@@ -247,25 +263,93 @@ def test_resumed_training_steps_the_upsampled_fields(trained, room, tmp_path, mo
     # nerfstudio 1.1.5's checkpoints hold numpy scalars (its schedulers' rates), which torch >= 2.6 refuses to load
     # by default: the documented switch back (docs/nerf.md, "nerfstudio plugin")
     monkeypatch.setenv("TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD", "1")
-    resumed = hybrid_config(room, tmp_path, 5, adam_state)
+    resumed = hybrid_config(room, tmp_path, 5, adam_state, trainer.pipeline.model.config.colour_head)
     resumed.load_dir = trainer.checkpoint_dir
     trainer2, encodings2, losses2 = train(resumed)
     assert len(losses2) == 5
     assert_optimizer_holds_the_fields(trainer2, encodings2, steps_in_state(adam_state, STEPS) + 5)
 
 
-def test_ns_train_finds_the_three_methods():
+class _Constant(torch.nn.Module):
+    """An encoding whose features are the same everywhere: ``[..., 3]`` -> ``[..., F]``."""
+
+    def __init__(self, value: torch.Tensor):
+        super().__init__()
+        self.value = torch.nn.Parameter(value)
+
+    def get_out_dim(self) -> int:
+        return self.value.shape[0]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.value.expand(*x.shape[:-1], -1)
+
+
+def _both_heads(model, rays) -> tuple[dict, dict]:
+    outputs = []
+    for head in ("per_sample", "deferred"):
+        model.config.colour_head = head
+        outputs.append(model(rays))  # nerfstudio's Model.forward: the box collider's near / far, then get_outputs
+    return outputs[0], outputs[1]
+
+
+def test_the_deferred_head_is_the_per_sample_head_where_the_features_do_not_vary(trained):
+    """``colour_head: deferred`` decodes the weighted mean of a ray's features once: where every sample has the same
+    features, TensoRF's per-sample colours are all that one colour, and the two heads give the same image, depth and
+    accumulation (and gradients to the head). Where the features vary (the trained field) the images differ."""
+    _, trainer, _, _ = trained
+    model = copy.deepcopy(trainer.pipeline.model).eval()
+    config = model.config.colour_head
+    cameras = trainer.pipeline.datamanager.train_dataset.cameras
+    rays = cameras.generate_rays(camera_indices=0).flatten()[::7]
+    with torch.no_grad():
+        varying = _both_heads(model, rays)
+    assert (varying[0]["rgb"] - varying[1]["rgb"]).abs().max() > 1e-3
+    torch.manual_seed(0)
+    model.field.color_encoding = _Constant(torch.randn(model.field.color_encoding.get_out_dim()))
+    # a thinner density, so that rays are partly transparent and the background and the mean's 1 / A matter
+    density = model.field.get_density
+    model.field.get_density = lambda samples: 0.05 * density(samples)
+    ref, ours = _both_heads(model, rays)
+    model.config.colour_head = config
+    assert ref["rgb"].shape == ours["rgb"].shape == (rays.shape[0], 3)
+    assert float(ref["accumulation"].min()) < 0.8
+    for key in ("rgb", "accumulation", "depth"):
+        assert torch.allclose(ref[key], ours[key], atol=1e-5), key
+    head = list(model.field.mlp_head.parameters())
+    g_ref = torch.autograd.grad(ref["rgb"].sum(), head)
+    g_ours = torch.autograd.grad(ours["rgb"].sum(), head)
+    for a, b in zip(g_ref, g_ours):  # sum_i w_i dh against A dh: float32 sums in another order
+        assert (a - b).abs().max() <= 1e-4 * a.abs().max(), float((a - b).abs().max() / a.abs().max())
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("head_dtype", "float16", "head_dtype 'float16': choose float32 or bfloat16"),
+    ("colour_head", "per_ray", "colour_head 'per_ray': choose per_sample or deferred"),
+    ("use_sh", True, "colour_head deferred runs the MLP head per ray"),
+])
+def test_unknown_model_options_are_refused_naming_them(room, tmp_path, key, value, message):
+    config = hybrid_config(room, tmp_path, 1, "reset", "deferred" if key == "use_sh" else "per_sample")
+    setattr(config.pipeline.model, key, value)
+    trainer = config.setup(local_rank=0, world_size=1)
+    with pytest.raises(ValueError, match=message):
+        trainer.setup()
+
+
+def test_ns_train_finds_the_four_methods():
     """The ``nerfstudio.method_configs`` entry points of pyproject.toml, as ``ns-train`` discovers them (needs the
     package installed after they were added: an older install's metadata lacks them)."""
     from nerfstudio.plugins.registry import discover_methods
 
     methods, descriptions = discover_methods()
-    for name in ("tdfields-cp", "tdfields-six-axis", "tdfields-hybrid"):
+    for name in ("tdfields-cp", "tdfields-six-axis", "tdfields-hybrid", "tdfields-vm"):
         assert methods[name].method_name == name and "tdfields" in descriptions[name]
     assert methods["tdfields-six-axis"].pipeline.model.density_kind == "six_axis"
+    vm = methods["tdfields-vm"].pipeline.model
+    assert (vm.density_kind, vm.density_rank, vm.appearance_kind, vm.appearance_rank) == (
+        "vector_matrix", 16, "vector_matrix", 1)
 
 
-@pytest.mark.parametrize("module", ["nerfstudio", "nerfstudio_model", "nerfstudio_methods"])
+@pytest.mark.parametrize("module", ["nerfstudio", "nerfstudio_model", "nerfstudio_methods", "nerfstudio_deferred"])
 def test_without_nerfstudio_the_import_error_names_the_extra(module):
     """Each module of the plugin, imported where nerfstudio is missing (hidden here in a fresh interpreter)."""
     code = ("import sys; sys.modules['nerfstudio'] = None\n"
