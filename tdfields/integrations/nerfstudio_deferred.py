@@ -25,14 +25,13 @@ from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 
 
-def _masked(mask: torch.Tensor, shape: tuple, fn) -> torch.Tensor:
-    """``fn()`` where ``mask`` (rays) holds, zeros elsewhere: ``fn`` evaluated on the masked rays only."""
-    if bool(mask.all()):
-        return fn(None)
-    out = torch.zeros(shape, dtype=torch.float32, device=mask.device)
-    if bool(mask.any()):
-        out = out.index_put((mask,), fn(mask))
-    return out
+def _scatter(mask: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """``values [M, ...]`` of the rays where ``mask [R]`` holds, as ``[R, ...]`` with zeros elsewhere
+    (differentiable); ``values`` itself when every ray is in the mask."""
+    if values.shape[0] == mask.shape[0]:
+        return values
+    out = values.new_zeros((mask.shape[0], *values.shape[1:]))
+    return out.index_put((mask,), values)
 
 
 def ray_colour(field, features: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
@@ -56,14 +55,15 @@ def deferred_outputs(model, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
     live = (model.renderer_accumulation(weights) >= 1e-4).reshape(-1)
     pdf = model.sampler_pdf(ray_bundle, uniform, weights)
 
-    def positions(mask):
-        samples = pdf if mask is None else pdf[mask]
-        return samples, SceneBox.get_normalized_positions(samples.frustums.get_positions(), field.aabb) * 2 - 1
-
     n_rays, n_samples = pdf.shape
-    density = _masked(live, (n_rays, n_samples, 1), lambda m: field.get_density(positions(m)[0]))
-    channels = field.color_encoding.get_out_dim()
-    features = _masked(live, (n_rays, n_samples, channels), lambda m: field.color_encoding(positions(m)[1]))
+    if bool(live.any()):
+        samples = pdf if bool(live.all()) else pdf[live]
+        positions = SceneBox.get_normalized_positions(samples.frustums.get_positions(), field.aabb) * 2 - 1
+        density = _scatter(live, field.get_density(samples))
+        features = _scatter(live, field.color_encoding(positions))
+    else:
+        density = weights.new_zeros((n_rays, n_samples, 1))
+        features = weights.new_zeros((n_rays, n_samples, field.color_encoding.get_out_dim()))
     weights_fine = pdf.get_weights(density)
     accumulation = model.renderer_accumulation(weights_fine)
     depth = model.renderer_depth(weights_fine, pdf)

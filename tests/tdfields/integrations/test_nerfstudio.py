@@ -301,6 +301,10 @@ def test_the_deferred_head_is_the_per_sample_head_where_the_features_do_not_vary
     config = model.config.colour_head
     cameras = trainer.pipeline.datamanager.train_dataset.cameras
     rays = cameras.generate_rays(camera_indices=0).flatten()[::7]
+    # the first rays start outside the box and leave it: the coarse pass sees nothing, no fine query, background
+    away = torch.tensor([1.0, 1.0, 1.0]) / 3 ** 0.5
+    rays.origins[:5] = 3.0 * away
+    rays.directions[:5] = away
     with torch.no_grad():
         varying = _both_heads(model, rays)
     assert (varying[0]["rgb"] - varying[1]["rgb"]).abs().max() > 1e-3
@@ -312,7 +316,11 @@ def test_the_deferred_head_is_the_per_sample_head_where_the_features_do_not_vary
     ref, ours = _both_heads(model, rays)
     model.config.colour_head = config
     assert ref["rgb"].shape == ours["rgb"].shape == (rays.shape[0], 3)
-    assert float(ref["accumulation"].min()) < 0.8
+    assert float(ref["accumulation"][5:].min()) < 0.8
+    assert float(ours["accumulation"][:5].abs().max()) == 0.0 and torch.all(ours["rgb"][:5] == 1.0)  # white
+    with torch.no_grad():
+        empty = _both_heads(model, rays[:5])  # a batch where no ray has a fine query
+    assert torch.equal(empty[0]["rgb"], empty[1]["rgb"]) and torch.all(empty[1]["rgb"] == 1.0)
     for key in ("rgb", "accumulation", "depth"):
         assert torch.allclose(ref[key], ours[key], atol=1e-5), key
     head = list(model.field.mlp_head.parameters())
