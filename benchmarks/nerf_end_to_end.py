@@ -86,6 +86,8 @@ def summarise(runs: list[dict], labels: list[str]) -> list[dict]:
     rows = []
     for label in labels:
         mine = [r for r in runs if r["variant"] == label]
+        if not mine:  # a variant whose first run is still to come
+            continue
         row = {"variant": label, "runs": len(mine), "seeds": sorted({r["seed"] for r in mine}),
                **{k: statistics.median(r[k] for r in mine) for k in ("wall_s", "step_s")}}
         for k in ("psnr", "ssim"):
@@ -113,12 +115,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, type=Path)
     args = ap.parse_args(argv)
 
+    from _nerf_room import ensure_room
     from _stamp import stamp
-    from slam.data.synthetic import SynthConfig
-    from slam.data.synthetic.nerfstudio_export import export_nerfstudio
 
-    if not (args.room / "transforms.json").exists():
-        export_nerfstudio(args.room, SynthConfig(frames=24, height=48, width=64, loop_frames=96))
+    ensure_room(args.room)
     args.out.mkdir(parents=True, exist_ok=True)
     variants = []
     for text in args.variant:
@@ -135,8 +135,7 @@ def main(argv=None) -> int:
                                     seed))
                 print(json.dumps(runs[-1]), flush=True)
                 summary = {"stamp": {**stamp(), "torch_threads": 1}, "settings": " ".join(SETTINGS),
-                           "runs": runs, "variants": summarise(runs, [v[0] for v in variants if
-                                                                     any(x["variant"] == v[0] for x in runs)])}
+                           "runs": runs, "variants": summarise(runs, [v[0] for v in variants])}
                 (args.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     for row in summary["variants"]:
         print(f"{row['variant']:<40} wall {row['wall_s']:7.1f} s ({row['wall_ratio']:.2f}x)  step "

@@ -55,16 +55,13 @@ def main(argv=None) -> int:
 
     import torch
 
+    from _nerf_room import ensure_room
     from _stamp import write_timings
-    from slam.data.synthetic import SynthConfig
-    from slam.data.synthetic.nerfstudio_export import export_nerfstudio
     from tdfields.integrations.nerfstudio_methods import tdfields_hybrid, tensorf_no_lpips
     from tdfields.integrations.nerfstudio_model import autocast_head
 
     torch.set_num_threads(1)
-    room = Path(args.room)
-    if not (room / "transforms.json").is_file():
-        export_nerfstudio(room, SynthConfig(frames=24, height=48, width=64, loop_frames=96))
+    room = ensure_room(Path(args.room))
     scratch = Path(tempfile.mkdtemp())
     pipes = {"tdfields-hybrid step": _pipeline(tdfields_hybrid, room, scratch / "a"),
              "tdfields-hybrid step, head bfloat16": _pipeline(tdfields_hybrid, room, scratch / "c",
