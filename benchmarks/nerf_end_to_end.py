@@ -114,6 +114,8 @@ def main(argv=None) -> int:
                     help="nerfstudio dataset folder (the synthetic room, written if absent)")
     ap.add_argument("--out", required=True, type=Path)
     args = ap.parse_args(argv)
+    if not (args.venv / "bin" / "ns-train").is_file():
+        ap.error(f"--venv {args.venv}: no bin/ns-train there (build it with bash .ci/nerfstudio_job.sh {args.venv})")
 
     from _nerf_room import ensure_room
     from _stamp import stamp
