@@ -41,7 +41,22 @@ def parse_variant(text: str) -> dict:
     path = Path(checkout).resolve()
     if not (path / "slam").is_dir():
         raise SystemExit(f"{prog}: error: {path} is not a checkout of this project (no slam/)")
-    return {"name": name, "checkout": str(path), "args": shlex.split(args)}
+    return {"name": name, "checkout": str(path), "args": absolute_paths(shlex.split(args))}
+
+
+# options whose value is a path: a run starts in its own checkout, so a relative one is made absolute here, where
+# it was written (`--data ../shared/...` from the main checkout means the same folder for a worktree in /tmp)
+PATH_OPTIONS = ("--data", "--config", "--resume")
+
+
+def absolute_paths(args: list[str]) -> list[str]:
+    """``args`` with the value of every :data:`PATH_OPTIONS` option that names an existing file or folder made
+    absolute (a preset name such as ``tum/fr1_rpy-cpu`` is left as it is)."""
+    out = list(args)
+    for i, a in enumerate(out[:-1]):
+        if a in PATH_OPTIONS and Path(out[i + 1]).exists():
+            out[i + 1] = str(Path(out[i + 1]).resolve())
+    return out
 
 
 def run_variant(v: dict, out: Path, repeat: int) -> dict:
@@ -71,7 +86,7 @@ def main(argv=None) -> int:
     if args.repeats < 1:
         raise SystemExit("before_after: error: --repeats must be >= 1")
     variants = [parse_variant(v) for v in args.variant]
-    out = Path(args.out)
+    out = Path(args.out).resolve()  # the runs start in their checkouts: a relative --out would land in each
     out.mkdir(parents=True, exist_ok=True)
     runs = [run_variant(v, out, r) for r in range(args.repeats) for v in variants]
     sys.path.insert(0, str(ROOT))

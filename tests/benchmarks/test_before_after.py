@@ -1,0 +1,38 @@
+"""benchmarks/before_after.py (shared by frame_breakdown.py): a variant's relative paths mean what they meant where
+the command was typed, though every run starts in its own checkout."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPT = ROOT / "benchmarks" / "before_after.py"
+
+
+@pytest.fixture(scope="module")
+def before_after():
+    spec = importlib.util.spec_from_file_location("before_after", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_relative_data_and_config_paths_are_made_absolute_preset_names_kept(before_after, tmp_path, monkeypatch):
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "my.yaml").write_text("inherit: synthetic\n")
+    monkeypatch.chdir(tmp_path)
+    v = before_after.parse_variant(f"a={ROOT}:--config my.yaml --data seq --no-mesh seed=3")
+    assert v["args"] == ["--config", str(tmp_path / "my.yaml"), "--data", str(tmp_path / "seq"), "--no-mesh",
+                         "seed=3"]
+    v = before_after.parse_variant(f"b={ROOT}:--config tum/fr1_rpy-cpu --data missing")
+    assert v["args"] == ["--config", "tum/fr1_rpy-cpu", "--data", "missing"]  # not paths here: the run says so
+    assert v["checkout"] == str(ROOT)
+
+
+def test_a_variant_that_is_not_a_checkout_is_a_usage_error(before_after, tmp_path):
+    with pytest.raises(SystemExit, match="not a checkout of this project"):
+        before_after.parse_variant(f"a={tmp_path}:--no-mesh")
+    with pytest.raises(SystemExit, match="NAME=CHECKOUT:ARGS"):
+        before_after.parse_variant("no-equals-sign")
