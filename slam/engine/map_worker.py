@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import torch
 
 from slam.engine.map_process import MapProcess
-from slam.engine.mapper import MapResult, keep_keyframe, map_frame
+from slam.engine.mapper import MapMoments, MapResult, keep_keyframe, map_frame
 from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
 
 
@@ -93,12 +93,13 @@ class MapWorker:
         self.snapshot_s = 0.0  # time spent taking and loading snapshots
         self.map_s = 0.0  # wall time of the mapping calls themselves (wherever they ran)
         self.calls = 0
+        self.moments = MapMoments()  # the map's Adam state between calls (mapping.optimizer_state: persistent)
 
     # ---------------------------------------------------------------------------------------------- calls
     def _run(self, job: MapJob) -> MapDone:
         t0 = time.perf_counter()
         res = map_frame(self.scene, job.k, job.color, job.depth, job.pose, self.intr, self.keyframes, self.cfg,
-                        self.gen, first=job.first, should_stop=self._abort.is_set)
+                        self.gen, first=job.first, should_stop=self._abort.is_set, moments=self.moments)
         keep_keyframe(self.keyframes, job.k, job.color, job.depth, job.pose, res, job.keyframe)
         snap = None
         if self.parallel:
@@ -194,6 +195,7 @@ class MapWorker:
         self.wait_idle()
         pads = plan_growth(self.scene, lower, upper)
         apply_growth(self.scene, pads)
+        self.moments.reset()  # moments of the old factors' shapes: the next call starts a fresh Adam
         if self.process is not None and self.process.started:
             self.process.grow(pads)
         if self.parallel:
@@ -205,9 +207,10 @@ class MapWorker:
         return pads
 
     def state_dict(self) -> dict:
-        """``{"pending", "applied_any", "track_scene"}``: the calls not yet applied (waited for, with their results
-        and, in parallel mode, the map each left), whether any was applied, and the tracker's copy of the map
-        (parallel mode; None inline, where it is the scene). Plain tensors and numbers."""
+        """``{"pending", "applied_any", "track_scene", "moments"}``: the calls not yet applied (waited for, with their
+        results and, in parallel mode, the map each left), whether any was applied, the tracker's copy of the map
+        (parallel mode; None inline, where it is the scene) and the map's carried Adam state (None if none). Plain
+        tensors and numbers."""
         pending = []
         for _, item in self._queue:
             done = item if isinstance(item, MapDone) else item.result()
@@ -218,7 +221,8 @@ class MapWorker:
                                        "skipped": int(done.result.skipped)},
                             "snapshot": done.snapshot})
         track = ({k: v.detach().cpu() for k, v in self.track_scene.state_dict().items()} if self.parallel else None)
-        return {"pending": pending, "applied_any": bool(self._applied_any), "track_scene": track}
+        return {"pending": pending, "applied_any": bool(self._applied_any), "track_scene": track,
+                "moments": self.moments.state}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore a :meth:`state_dict`: the pending calls are queued as finished (their images are not needed:
@@ -231,6 +235,7 @@ class MapWorker:
                 fit_to_state(self.track_scene, state["track_scene"])  # a grown map: its size first
                 self.track_scene.load_state_dict(state["track_scene"])
         self._applied_any = bool(state["applied_any"])
+        self.moments = MapMoments(state.get("moments"))  # a checkpoint from before the key: none carried
         self._queue = []
         for p in state["pending"]:
             job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])

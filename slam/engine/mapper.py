@@ -7,6 +7,13 @@ Each iteration draws ``pixels // n_frames`` pixels from every window frame over 
 depth terms use rays with depth; the colour term every ray whose measured surface is inside the box.
 Joint BA (after more than ``ba_min_keyframes`` keyframes) optimises one 7-d pose per window frame except the
 oldest (the gauge) and frame 0 (pinned to ground truth).
+
+With ``mapping.optimizer_state: persistent`` (ours; Co-SLAM keeps one map optimiser for the whole run) the map's
+Adam moments are carried from one call to the next in a :class:`MapMoments` the caller holds, from the first call
+after the warm-up on (the warm-up's rates are x ``lr_first_factor``); the BA poses, new tensors every call, get a
+fresh Adam each call. A fresh Adam's first step moves every parameter the batch touched by the full learning rate,
+whatever its gradient (its moments are that one gradient); carried moments scale each step by the gradients seen so
+far (docs/slam.md, "Carried map moments").
 """
 
 from __future__ import annotations
@@ -87,18 +94,74 @@ def _free_poses(frame_ids: list[int], ba: bool) -> torch.Tensor:
     return free
 
 
-def _optimiser(scene, cfg: Config, first: bool, poses0, free):
-    """Adam over the scene's groups (and, with BA, the free window poses): ``(optimiser, parameters, cam)``;
-    ``cam`` ``[F_free, 7]`` is None without BA."""
-    mc = cfg.mapping
-    factor = mc.lr_first_factor if first else 1.0
-    # the warm-up starts from the random initialisation, where the step scale is ~40x (CP): plain rates there
-    groups = scene.param_groups(cfg, factor, "none" if first else mc.lr_scaling)
-    cam = None
-    if bool(free.any()):
-        cam = torch.nn.Parameter(poses0[free].clone())
-        groups.append({"params": [cam], "lr": mc.joint_opt_cam_lr})
-    return adam(groups), [p for g in groups for p in g["params"]], cam
+class MapMoments:
+    """The map's Adam state between mapping calls (``mapping.optimizer_state: persistent``): ``state`` maps each
+    scene parameter's name to its Adam state after the last call (``step``, ``exp_avg``, ``exp_avg_sq``; None: none
+    yet, or the map was grown since). By name, not by Adam's group index: the rate groups can change from call to call
+    (``lr_scaling: lift``). Plain tensors, saved in checkpoints with the mapper's state."""
+
+    def __init__(self, state: dict | None = None):
+        self.state = state
+
+    def reset(self) -> None:
+        """Forget the moments (a grown map's factors have other shapes): the next call starts a fresh Adam."""
+        self.state = None
+
+
+class _Optimiser:
+    """The call's optimisers: Adam over the scene's groups (its state from ``moments`` when carried) and, with BA,
+    a fresh Adam over the free window poses ``cam`` ``[F_free, 7]`` (None without BA); ``params`` all of them."""
+
+    def __init__(self, scene, cfg: Config, first: bool, poses0, free, moments: MapMoments | None):
+        mc = cfg.mapping
+        factor = mc.lr_first_factor if first else 1.0
+        # the warm-up starts from the random initialisation, where the step scale is ~40x (CP): plain rates there
+        groups = scene.param_groups(cfg, factor, "none" if first else mc.lr_scaling)
+        self.moments = moments if (mc.optimizer_state == "persistent" and not first) else None
+        self.cam, self.poses, cam_groups = None, None, []
+        if bool(free.any()):
+            self.cam = torch.nn.Parameter(poses0[free].clone())
+            cam_groups = [{"params": [self.cam], "lr": mc.joint_opt_cam_lr}]
+        if self.moments is None:  # one Adam over everything, as ESLAM
+            self.map = adam(groups + cam_groups)
+        else:
+            self.map = adam(groups)
+            self.names = {p: n for n, p in scene.named_parameters()}
+            self._load(self.moments.state or {})
+            self.poses = adam(cam_groups) if cam_groups else None
+        self.params = [p for g in groups + cam_groups for p in g["params"]]
+
+    def _load(self, state: dict) -> None:
+        for p, name in self.names.items():
+            if name in state:
+                if state[name]["exp_avg"].shape != p.shape:
+                    raise RuntimeError(f"carried Adam moments of {name} have shape "
+                                       f"{tuple(state[name]['exp_avg'].shape)}, the parameter {tuple(p.shape)} "
+                                       "(a grown map must reset them)")
+                self.map.state[p] = {k: v.clone() for k, v in state[name].items()}
+
+    def window_poses(self, poses0: torch.Tensor, free: torch.Tensor) -> torch.Tensor:
+        """``[F, 7]`` the window's poses this iteration: ``poses0`` with the free ones BA's (differentiable)."""
+        if self.cam is None:
+            return poses0
+        poses = poses0.clone()
+        poses[free] = self.cam
+        return poses
+
+    def zero_grad(self) -> None:
+        for opt in (self.map, self.poses):
+            if opt is not None:
+                opt.zero_grad(set_to_none=True)
+
+    def step(self) -> None:
+        for opt in (self.map, self.poses):
+            if opt is not None:
+                opt.step()
+
+    def keep(self) -> None:
+        """After the call: the map optimiser's state into the moments (when carried)."""
+        if self.moments is not None:
+            self.moments.state = {self.names[p]: dict(st) for p, st in self.map.state.items()}
 
 
 def _loss(scene, colors, depths, poses, intrinsics, cfg: Config, per_frame: int, generator):
@@ -158,6 +221,7 @@ def map_frame(
     generator: torch.Generator,
     first: bool = False,
     should_stop=None,
+    moments: MapMoments | None = None,
 ) -> MapResult:
     """One mapping call for frame ``index``.
 
@@ -169,6 +233,8 @@ def map_frame(
         first: the first-frame warm-up (``iters_first``, learning rates x ``lr_first_factor``).
         should_stop: checked before every iteration; True raises :class:`MappingAborted` (a second Ctrl-C: the
             call's work is thrown away, so the map is left mid-call and must not be saved).
+        moments: the map's Adam state carried between calls (``mapping.optimizer_state: persistent``; read and
+            updated here). None: every call starts a fresh Adam, whatever the config says.
 
     Returns:
         :class:`MapResult` with the (possibly BA-refined) current pose.
@@ -177,32 +243,29 @@ def map_frame(
     window = _window(keyframes, depth, pose, intrinsics, mc, generator, first)
     colors, depths, poses0, frame_ids = _window_frames(keyframes, window, index, color, depth, pose)
     free = _free_poses(frame_ids, mc.joint_opt and not first and len(keyframes) > mc.ba_min_keyframes)
-    opt, params, cam = _optimiser(scene, cfg, first, poses0, free)
+    opt = _Optimiser(scene, cfg, first, poses0, free, moments)
     steps, skipped, last = 0, 0, float("nan")
     per_frame = max(mc.pixels // len(frame_ids), 1)
     free_dev = free.to(depth.device)
     for _ in range(mc.iters_first if first else mc.iters):
         if should_stop is not None and should_stop():
             raise MappingAborted(f"mapping call of frame {index} aborted")
-        poses = poses0
-        if cam is not None:
-            poses = poses0.clone()
-            poses[free_dev] = cam
-        loss = _loss(scene, colors, depths, poses, intrinsics, cfg, per_frame, generator)
+        loss = _loss(scene, colors, depths, opt.window_poses(poses0, free_dev), intrinsics, cfg, per_frame, generator)
         if loss is None:
             break
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         if not bool(torch.isfinite(loss)):
             skipped += 1  # nothing is stepped: the map (and Adam's state) stay as they were
             continue
         loss.backward()
-        if not finite_step(loss, params):
+        if not finite_step(loss, opt.params):
             skipped += 1
-            opt.zero_grad(set_to_none=True)
+            opt.zero_grad()
             continue
         opt.step()
         steps += 1
         last = float(loss.detach())
+    opt.keep()
     if steps == 0:
         return MapResult(pose, frame_ids, float("nan"), False, skipped)
-    return MapResult(_write_back(cam, free, window, keyframes, pose), frame_ids, last, True, skipped)
+    return MapResult(_write_back(opt.cam, free, window, keyframes, pose), frame_ids, last, True, skipped)

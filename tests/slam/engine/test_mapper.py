@@ -160,3 +160,67 @@ def test_matched_rates_change_nothing_for_tri_planes(eslam_setup, monkeypatch):
     plain, _ = _groups_seen(cfg, s, frame, monkeypatch, "none")
     matched, _ = _groups_seen(cfg, s, frame, monkeypatch, "matched")
     _same(plain, matched)
+
+
+def _calls(cfg, s, frame, state: str, moments=None, adam=None, monkeypatch=None):
+    """Two mapping calls of frame 5 (3 iterations each, no BA) from the warm map, the same draws; ``adam``, if
+    given, replaces the mapper's optimiser factory. Returns the scene after them."""
+    c = copy.deepcopy(cfg)
+    c.mapping.optimizer_state = state
+    c.mapping.joint_opt = False
+    c.mapping.lr_scaling = "none"  # rates fixed from call to call, so one kept Adam is the exact reference
+    if adam is not None:
+        monkeypatch.setattr(mapper, "adam", adam)
+    scene = copy.deepcopy(s.scene)
+    keyframes = KeyframeStore([copy.deepcopy(kf) for kf in s.keyframes.frames])
+    gen = torch.Generator().manual_seed(3)
+    for _ in range(2):
+        mapper.map_frame(scene, 5, frame.color, frame.depth, s.state.est[-1], s.intr, keyframes, c, gen,
+                         moments=moments)
+    return scene
+
+
+def test_carried_moments_are_one_adam_kept_across_the_calls(setup, monkeypatch):
+    """``mapping.optimizer_state: persistent``: the moments a call leaves (its Adam's state per parameter) start
+    the next, so two calls move the map exactly as one Adam object kept across both (the reference: the factory spied to
+    hand back the first call's optimiser; fixed rates, as a kept Adam keeps its first call's), its step count
+    going on (3, then 6); a fresh Adam per call (ESLAM's) moves it differently, and so does a caller that holds no
+    moments. With ``lr_scaling: lift`` each call's rates are its own (the moments carry, the rates do not)."""
+    cfg, s, frame = setup
+    moments = mapper.MapMoments()
+    carried = _calls(cfg, s, frame, "persistent", moments)
+    assert {float(v["step"]) for v in moments.state.values()} == {6.0}
+    kept = {}
+    real = mapper.adam
+
+    def one_adam(groups, **kw):
+        kept.setdefault("opt", real(groups, **kw))
+        return kept["opt"]
+
+    reference = _calls(cfg, s, frame, "per_call", adam=one_adam, monkeypatch=monkeypatch)
+    _same(carried, reference)
+    monkeypatch.setattr(mapper, "adam", real)
+    fresh = _calls(cfg, s, frame, "per_call")
+    assert not torch.equal(carried.state_dict()["fields.geometry.levels.0.factors.x"],
+                           fresh.state_dict()["fields.geometry.levels.0.factors.x"])
+    _same(_calls(cfg, s, frame, "persistent", None), fresh)  # no moments held: nothing carried
+
+
+def test_the_warm_up_carries_no_moments_and_a_growth_forgets_them(setup):
+    """The warm-up's rates are x lr_first_factor: its Adam is not carried; a grown map's factors have other
+    shapes, so the worker's moments are reset (the next call starts afresh)."""
+    from slam.engine.map_worker import MapWorker
+
+    cfg, s, frame = setup
+    c = copy.deepcopy(cfg)
+    c.mapping.optimizer_state = "persistent"
+    scene = copy.deepcopy(s.scene)
+    moments = mapper.MapMoments()
+    mapper.map_frame(scene, 5, frame.color, frame.depth, s.state.est[-1], s.intr, KeyframeStore(), c,
+                     torch.Generator().manual_seed(3), first=True, moments=moments)
+    assert moments.state is None
+    worker = MapWorker(scene, KeyframeStore(), c, s.intr, torch.Generator().manual_seed(3), parallel=False)
+    worker.moments.state = {"fields.geometry.levels.0.factors.x": {}}
+    worker.grow(torch.full((3,), 0.1), torch.zeros(3))
+    assert worker.moments.state is None
+    worker.close()

@@ -141,13 +141,17 @@ def _traj(out: Path) -> str:
     return (out / "trajectory.txt").read_text()
 
 
-@pytest.mark.parametrize("parallel", ["true", "false"])
-def test_an_interrupt_with_a_mapping_call_pending_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path, parallel):
+# the map's Adam moments carried between calls (mapping.optimizer_state: persistent) are in the checkpoint too: the
+# resumed run's next call starts from them (in parallel mode, from those of the call still pending)
+@pytest.mark.parametrize("parallel,state", [("true", "persistent"), ("false", "per_call")])
+def test_an_interrupt_with_a_mapping_call_pending_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path, parallel,
+                                                                                   state):
     from slam.run.checkpoint import load_run
     from slam.config import load_config
     from slam.run.runner import RunInterrupted, run_to_folder
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, f"parallel={parallel}"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, f"parallel={parallel}",
+                                    f"mapping.optimizer_state={state}"])
     run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
     for at in (2, 5):
         out = tmp_path / f"stopped-at-{at}"
@@ -161,8 +165,36 @@ def test_an_interrupt_with_a_mapping_call_pending_resumes_to_the_uninterrupted_r
         assert _traj(out) == _traj(tmp_path / "full"), f"stopped after frame {at}"
 
 
-@pytest.mark.parametrize("parallel", ["true", "false"])
-def test_a_run_stopped_after_its_box_grew_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path, parallel):
+def test_carried_map_moments_come_back_with_a_resume(tiny_seq, tmp_path, monkeypatch):
+    """``mapping.optimizer_state: persistent`` with every frame mapped: the checkpoint holds the moments and the
+    resumed run is the uninterrupted one; a resume that starts them afresh (the checkpoint's moments dropped) ends
+    elsewhere, so they are what carries it."""
+    import shutil
+
+    import slam.engine.map_worker as map_worker
+    from slam.config import load_config
+    from slam.engine.mapper import MapMoments
+    from slam.run.checkpoint import load_run
+    from slam.run.runner import RunInterrupted, run_to_folder
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "mapping.every_frame=1",
+                                    "mapping.keyframe_every=1", "mapping.optimizer_state=persistent"])
+    run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
+    out = tmp_path / "stopped"
+    with pytest.raises(RunInterrupted):
+        run_to_folder(cfg, out, progress=False, mesh=False, stop_after=3)
+    moments = load_run(out / "checkpoint.pt")["extra"]["run"]["moments"]
+    assert {float(v["step"]) for v in moments.values()} == {6.0}  # frames 1 and 2, 3 iterations each
+    shutil.copytree(out, tmp_path / "dropped")
+    run_to_folder(cfg, out, progress=False, mesh=False, resume=True)
+    assert _traj(out) == _traj(tmp_path / "full")
+    monkeypatch.setattr(map_worker, "MapMoments", lambda state=None: MapMoments(None))
+    run_to_folder(cfg, tmp_path / "dropped", progress=False, mesh=False, resume=True)
+    assert _traj(tmp_path / "dropped") != _traj(tmp_path / "full")
+
+
+@pytest.mark.parametrize("parallel,state", [("true", "per_call"), ("false", "persistent")])
+def test_a_run_stopped_after_its_box_grew_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path, parallel, state):
     """The checkpoint holds the grown map (and, in parallel mode, the grown maps of the calls still pending) and
     the grown boxes; the resumed run rebuilds its scene at that size. frames.csv shows the size frame by frame, and
     ``lrslam mesh`` rebuilds the grown map."""
@@ -173,7 +205,8 @@ def test_a_run_stopped_after_its_box_grew_resumes_to_the_uninterrupted_run(tiny_
     from slam.run.checkpoint import load_run
     from slam.run.runner import RunInterrupted, run_to_folder
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, *GROWING, f"parallel={parallel}"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, *GROWING, f"parallel={parallel}",
+                                    f"mapping.optimizer_state={state}"])
     full = run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
     at = next(e["frame"] for e in full["events"] if "growth" in e)  # stride 1: frame index = position
     out = tmp_path / "stopped"
