@@ -183,9 +183,5 @@ def _validate(cfg: Config) -> None:
     if cfg.mapper_process and not cfg.parallel:
         raise SlamInputError("config key 'mapper_process' = true needs 'parallel' = true (sequential mode maps inline, "
                              "in the tracker's own process)")
-    if cfg.mapper_process and cfg.mapping.optimizer_state == "persistent":
-        raise SlamInputError("config key 'mapping.optimizer_state' = persistent does not run with 'mapper_process' = "
-                             "true yet (the moments would live in the child process): use the mapper thread "
-                             "(mapper_process: false) or optimizer_state: per_call")
     if len(cfg.tracking.ignore_edge) != 2:
         raise SlamInputError(f"config key 'tracking.ignore_edge' must be [rows, columns], got {cfg.tracking.ignore_edge!r}")

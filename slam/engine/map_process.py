@@ -7,13 +7,16 @@ mapping call beside a tracking thread 18 % longer, against -6 % and +7 % beside 
 Here the mapping calls run in a child process instead, on a replica of the map and the keyframes that the parent
 keeps in step:
 
-* the child starts at the first call from the parent's map, keyframes and mapping random stream as they are then
-  (a fresh run's initial map, or a resumed run's);
+* the child starts at the first call from the parent's map, keyframes, mapping random stream and carried Adam
+  moments (``mapping.optimizer_state: persistent``) as they are then (a fresh run's initial map, or a resumed
+  run's);
 * every call sends the job (frame, pose, flags) and gets back what :class:`slam.engine.map_worker.MapWorker` needs:
-  the result, the map the call left (the snapshot the thread mode takes too), the random stream's state, and the
-  keyframes' poses (BA refines them); the parent then makes the same keyframe store change the child made, so
-  both stores hold the same keyframes with the same poses, and its own map becomes the child's;
-* a growth of the map's box is sent between calls and applied to the replica by the same samples.
+  the result, the map the call left (the snapshot the thread mode takes too), the random stream's state, the
+  keyframes' poses (BA refines them) and the carried moments (None per call; a few MB when carried); the parent
+  then makes the same keyframe store change the child made, so both stores hold the same keyframes with the same
+  poses, its own map becomes the child's and its moments the child's;
+* a growth of the map's box is sent between calls and applied to the replica by the same samples (the carried
+  moments reset on both sides).
 
 The results are the thread mode's, bit for bit (same code, same inputs, same order; tested), so everything the
 schedule promises holds. Messages are pickled by value over a pipe (no shared-memory handles to leak on long runs;
@@ -40,7 +43,7 @@ def _serve(conn, cfg, intr, device: str) -> None:
     """The child: builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.engine.mapper import keep_keyframe, map_frame
+    from slam.engine.mapper import MapMoments, keep_keyframe, map_frame
     from slam.engine.runtime import keep_freed_memory, set_threads
     from slam.model.growth import apply_growth, fit_to_state
     from slam.model.scene import SceneModel
@@ -49,6 +52,7 @@ def _serve(conn, cfg, intr, device: str) -> None:
     if cfg.keep_freed_memory:
         keep_freed_memory()
     scene = keyframes = None
+    moments = MapMoments()
     gen = torch.Generator()
     while True:
         try:
@@ -69,24 +73,36 @@ def _serve(conn, cfg, intr, device: str) -> None:
                     keyframes.add(Keyframe(k, color, depth, pose))
                 keyframes.max_keyframes = cap
                 gen.set_state(body["gen"])
+                moments = MapMoments(body["moments"])
                 reply = ("ready", None)
             elif kind == "grow":
                 apply_growth(scene, body)
+                moments.reset()
                 reply = ("grown", None)
             else:  # "map"
                 k, color, depth, pose, first, keyframe = body
                 t0 = time.perf_counter()
                 res = map_frame(scene, k, color.to(device), depth.to(device), pose.to(device), intr, keyframes, cfg,
-                                gen, first=first)
+                                gen, first=first, moments=moments)
                 keep_keyframe(keyframes, k, color, depth, pose, res, keyframe)
                 seconds = time.perf_counter() - t0
                 res.pose = res.pose.cpu()
                 snap = {name: t.detach().cpu().clone() for name, t in scene.state_dict().items()}
+                # the carried moments come back with the map they belong to (None unless mapping.optimizer_state:
+                # persistent), so the parent's mirror can checkpoint them
                 reply = ("done", {"result": res, "seconds": seconds, "snapshot": snap, "gen": gen.get_state(),
-                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7)})
+                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7),
+                                  "moments": _cpu(moments.state)})
         except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
             reply = ("error", traceback.format_exc())
         conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _cpu(state: dict | None) -> dict | None:
+    """A :class:`slam.engine.mapper.MapMoments` state with its tensors copied to the CPU (to cross the pipe)."""
+    if state is None:
+        return None
+    return {name: {k: v.detach().cpu().clone() for k, v in st.items()} for name, st in state.items()}
 
 
 class _Call:
@@ -121,8 +137,9 @@ class MapProcess:
     def started(self) -> bool:
         return self._proc is not None
 
-    def start(self, scene, keyframes, generator: torch.Generator) -> None:
-        """Start the child with a replica of ``scene``, ``keyframes`` and ``generator`` as they are now."""
+    def start(self, scene, keyframes, generator: torch.Generator, moments: dict | None = None) -> None:
+        """Start the child with a replica of ``scene``, ``keyframes``, ``generator`` and the carried Adam
+        ``moments`` (a :class:`slam.engine.mapper.MapMoments` state) as they are now."""
         ctx = multiprocessing.get_context("spawn")  # a fork would copy the parent's threads' locks mid-use
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_serve, args=(child, self.cfg, self.intr, self.device),
@@ -142,7 +159,7 @@ class MapProcess:
         kfs = [(kf.index, *kf.images(), kf.pose.clone()) for kf in keyframes.frames]
         state = {name: t.detach().cpu() for name, t in scene.state_dict().items()}
         self._send("init", {"aabb": scene.aabb.detach().cpu(), "scene": state, "keyframes": kfs,
-                            "gen": generator.get_state()})
+                            "gen": generator.get_state(), "moments": _cpu(moments)})
         self._expect("ready")
 
     def submit(self, job) -> _Call:

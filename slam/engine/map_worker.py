@@ -122,6 +122,7 @@ class MapWorker:
         for kf, pose in zip(self.keyframes.frames, reply["poses"]):
             kf.pose = pose.clone()
         self.gen.set_state(reply["gen"])
+        self.moments.state = reply["moments"]
         with torch.no_grad():
             self.scene.load_state_dict(reply["snapshot"])
         self.snapshot_s += time.perf_counter() - t0
@@ -133,7 +134,7 @@ class MapWorker:
         """Queue a call (run it now, in sequential mode)."""
         if self.process is not None:
             if not self.process.started:
-                self.process.start(self.scene, self.keyframes, self.gen)
+                self.process.start(self.scene, self.keyframes, self.gen, self.moments.state)
             self._queue.append((job.k, self.process.submit(job)))
         elif self.parallel:
             self._queue.append((job.k, self._pool.submit(self._run, job)))

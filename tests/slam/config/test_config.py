@@ -47,8 +47,6 @@ def test_parse_overrides_types():
         ("synthetic", ["noequals"], "key=value"),
         ("missing.yaml", [], "missing.yaml"),
         ("synthetic", ["mapping.optimizer_state=kept"], "'mapping.optimizer_state' = 'kept' is not allowed"),
-        ("synthetic", ["parallel=true", "mapper_process=true", "mapping.optimizer_state=persistent"],
-         "'mapping.optimizer_state' = persistent does not run with 'mapper_process' = true"),
     ],
 )
 def test_bad_input_names_the_problem(preset, overrides, needle):

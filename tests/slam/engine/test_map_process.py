@@ -15,12 +15,17 @@ def _traj(out) -> str:
     return (out / "trajectory.txt").read_text()
 
 
-def test_a_mapper_process_gives_the_thread_modes_run_through_a_growth_a_stop_and_a_resume(tiny_seq, tmp_path):
+# with carried Adam moments (mapping.optimizer_state: persistent) the child holds them, sends them back with each
+# call's map, starts a resumed run from the checkpoint's and resets them with a growth, as the thread does
+@pytest.mark.parametrize("state", ["per_call", "persistent"])
+def test_a_mapper_process_gives_the_thread_modes_run_through_a_growth_a_stop_and_a_resume(tiny_seq, tmp_path,
+                                                                                           state):
     from slam.run.checkpoint import load_run
     from slam.run.runner import RunInterrupted, run_to_folder
 
-    thread = load_config("synthetic", [f"data.path={tiny_seq}", *RUN, "parallel=true"])
-    proc = load_config("synthetic", [f"data.path={tiny_seq}", *RUN, "parallel=true", "mapper_process=true"])
+    run = [f"data.path={tiny_seq}", *RUN, "parallel=true", f"mapping.optimizer_state={state}"]
+    thread = load_config("synthetic", run)
+    proc = load_config("synthetic", [*run, "mapper_process=true"])
     full = run_to_folder(thread, tmp_path / "thread", progress=False, mesh=False)
     at = next(e["frame"] for e in full["events"] if "growth" in e)
     out = tmp_path / "process"
@@ -40,6 +45,52 @@ def test_a_mapper_process_gives_the_thread_modes_run_through_a_growth_a_stop_and
     assert [k["k"] for k in ka] == [k["k"] for k in kb]
     assert all(torch.equal(x["pose"], y["pose"]) for x, y in zip(ka, kb))  # BA's poses came back from the child
     assert torch.equal(a["extra"]["run"]["rng"]["map_gen"], b["extra"]["run"]["rng"]["map_gen"])
+    ma, mb = a["extra"]["run"]["moments"], b["extra"]["run"]["moments"]
+    assert (ma is None) == (mb is None) == (state == "per_call")
+    if ma is not None:  # the calls after the growth (8, 9) carried theirs: the child's came back to the checkpoint
+        assert {float(v["step"]) for v in ma.values()} == {6.0}
+        for name in ma:
+            assert all(torch.equal(ma[name][k], mb[name][k]) for k in ma[name]), name
+
+
+def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline_calls(tiny_seq):
+    """A child started with carried Adam moments (a resumed run's) maps from them: the moments and the map its call
+    sends back are those of the same call run inline from the same state, bit for bit."""
+    import copy
+
+    from slam.engine.map_process import MapProcess
+    from slam.engine.map_worker import MapJob
+    from slam.engine.mapper import MapMoments, map_frame
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "mapping.every_frame=1",
+                                    "mapping.keyframe_every=1", "mapping.optimizer_state=persistent"])
+    s = SLAM(cfg, load_data(cfg))
+    try:
+        for k in range(3):
+            s.step(k)
+        state = s.mapper.moments.state
+        assert {float(v["step"]) for v in state.values()} == {6.0}  # the calls of frames 1 and 2
+        frame = s.frames.get(3)
+        gen = torch.Generator()
+        gen.set_state(s.map_gen.get_state())
+        scene, keyframes, moments = copy.deepcopy(s.scene), copy.deepcopy(s.keyframes), MapMoments(state)
+        inline = map_frame(scene, 3, frame.color, frame.depth, s.state.est[-1], s.intr, keyframes, cfg, gen,
+                           moments=moments)
+        proc = MapProcess(cfg, s.intr, "cpu", lambda job, reply: reply)
+        try:
+            proc.start(s.scene, s.keyframes, s.map_gen, state)
+            reply = proc.submit(MapJob(3, frame.color, frame.depth, s.state.est[-1], False, True)).result()
+        finally:
+            proc.close()
+        assert torch.equal(reply["result"].pose, inline.pose)
+        for name, st in moments.state.items():
+            assert float(st["step"]) == 9.0 and all(torch.equal(v, reply["moments"][name][k]) for k, v in st.items())
+        for name, t in scene.state_dict().items():
+            assert torch.equal(t, reply["snapshot"][name]), name
+    finally:
+        s.close()
 
 
 def test_a_dead_mapper_process_is_an_error_that_names_it(tiny_seq):

@@ -168,7 +168,7 @@ def test_an_interrupt_with_a_mapping_call_pending_resumes_to_the_uninterrupted_r
 def test_carried_map_moments_come_back_with_a_resume(tiny_seq, tmp_path, monkeypatch):
     """``mapping.optimizer_state: persistent`` with every frame mapped: the checkpoint holds the moments and the
     resumed run is the uninterrupted one; a resume that starts them afresh (the checkpoint's moments dropped) ends
-    elsewhere, so they are what carries it."""
+    elsewhere, so they are what carries it. (A mapper process's new child starting from them: test_map_process.)"""
     import shutil
 
     import slam.engine.map_worker as map_worker
@@ -184,7 +184,8 @@ def test_carried_map_moments_come_back_with_a_resume(tiny_seq, tmp_path, monkeyp
     with pytest.raises(RunInterrupted):
         run_to_folder(cfg, out, progress=False, mesh=False, stop_after=3)
     moments = load_run(out / "checkpoint.pt")["extra"]["run"]["moments"]
-    assert {float(v["step"]) for v in moments.values()} == {6.0}  # frames 1 and 2, 3 iterations each
+    # frames 1 and 2, 3 iterations each
+    assert {float(v["step"]) for v in moments.values()} == {6.0}
     shutil.copytree(out, tmp_path / "dropped")
     run_to_folder(cfg, out, progress=False, mesh=False, resume=True)
     assert _traj(out) == _traj(tmp_path / "full")
