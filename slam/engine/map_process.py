@@ -36,6 +36,8 @@ import traceback
 
 import torch
 
+from slam.engine.mapper import MapMoments
+
 __all__ = ["MapProcess"]
 
 
@@ -43,7 +45,7 @@ def _serve(conn, cfg, intr, device: str) -> None:
     """The child: builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.engine.mapper import MapMoments, keep_keyframe, map_frame
+    from slam.engine.mapper import keep_keyframe, map_frame
     from slam.engine.runtime import keep_freed_memory, set_threads
     from slam.model.growth import apply_growth, fit_to_state
     from slam.model.scene import SceneModel
@@ -92,17 +94,10 @@ def _serve(conn, cfg, intr, device: str) -> None:
                 # persistent), so the parent's mirror can checkpoint them
                 reply = ("done", {"result": res, "seconds": seconds, "snapshot": snap, "gen": gen.get_state(),
                                   "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7),
-                                  "moments": _cpu(moments.state)})
+                                  "moments": moments.cpu_state()})
         except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
             reply = ("error", traceback.format_exc())
         conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
-
-
-def _cpu(state: dict | None) -> dict | None:
-    """A :class:`slam.engine.mapper.MapMoments` state with its tensors copied to the CPU (to cross the pipe)."""
-    if state is None:
-        return None
-    return {name: {k: v.detach().cpu().clone() for k, v in st.items()} for name, st in state.items()}
 
 
 class _Call:
@@ -159,7 +154,7 @@ class MapProcess:
         kfs = [(kf.index, *kf.images(), kf.pose.clone()) for kf in keyframes.frames]
         state = {name: t.detach().cpu() for name, t in scene.state_dict().items()}
         self._send("init", {"aabb": scene.aabb.detach().cpu(), "scene": state, "keyframes": kfs,
-                            "gen": generator.get_state(), "moments": _cpu(moments)})
+                            "gen": generator.get_state(), "moments": MapMoments(moments).cpu_state()})
         self._expect("ready")
 
     def submit(self, job) -> _Call:

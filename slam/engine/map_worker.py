@@ -223,7 +223,7 @@ class MapWorker:
                             "snapshot": done.snapshot})
         track = ({k: v.detach().cpu() for k, v in self.track_scene.state_dict().items()} if self.parallel else None)
         return {"pending": pending, "applied_any": bool(self._applied_any), "track_scene": track,
-                "moments": self.moments.state}
+                "moments": self.moments.cpu_state()}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore a :meth:`state_dict`: the pending calls are queued as finished (their images are not needed:

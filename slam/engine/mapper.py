@@ -107,6 +107,13 @@ class MapMoments:
         """Forget the moments (a grown map's factors have other shapes): the next call starts a fresh Adam."""
         self.state = None
 
+    def cpu_state(self) -> dict | None:
+        """``state`` with its tensors copied to the CPU (a checkpoint resumes on any device; the pipe to a mapper
+        process carries CPU tensors)."""
+        if self.state is None:
+            return None
+        return {name: {k: v.detach().cpu().clone() for k, v in st.items()} for name, st in self.state.items()}
+
 
 class _Optimiser:
     """The call's optimisers: Adam over the scene's groups (its state from ``moments`` when carried) and, with BA,
@@ -138,7 +145,8 @@ class _Optimiser:
                     raise RuntimeError(f"carried Adam moments of {name} have shape "
                                        f"{tuple(state[name]['exp_avg'].shape)}, the parameter {tuple(p.shape)} "
                                        "(a grown map must reset them)")
-                self.map.state[p] = {k: v.clone() for k, v in state[name].items()}
+                # on the parameter's device: a checkpoint's moments are on the CPU (fused Adam wants them beside it)
+                self.map.state[p] = {k: v.detach().to(p.device, copy=True) for k, v in state[name].items()}
 
     def window_poses(self, poses0: torch.Tensor, free: torch.Tensor) -> torch.Tensor:
         """``[F, 7]`` the window's poses this iteration: ``poses0`` with the free ones BA's (differentiable)."""
