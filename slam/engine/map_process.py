@@ -132,9 +132,9 @@ class MapProcess:
     def started(self) -> bool:
         return self._proc is not None
 
-    def start(self, scene, keyframes, generator: torch.Generator, moments: dict | None = None) -> None:
+    def start(self, scene, keyframes, generator: torch.Generator, moments: MapMoments | None = None) -> None:
         """Start the child with a replica of ``scene``, ``keyframes``, ``generator`` and the carried Adam
-        ``moments`` (a :class:`slam.engine.mapper.MapMoments` state) as they are now."""
+        ``moments`` as they are now."""
         ctx = multiprocessing.get_context("spawn")  # a fork would copy the parent's threads' locks mid-use
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_serve, args=(child, self.cfg, self.intr, self.device),
@@ -154,7 +154,7 @@ class MapProcess:
         kfs = [(kf.index, *kf.images(), kf.pose.clone()) for kf in keyframes.frames]
         state = {name: t.detach().cpu() for name, t in scene.state_dict().items()}
         self._send("init", {"aabb": scene.aabb.detach().cpu(), "scene": state, "keyframes": kfs,
-                            "gen": generator.get_state(), "moments": MapMoments(moments).cpu_state()})
+                            "gen": generator.get_state(), "moments": (moments or MapMoments()).cpu_state()})
         self._expect("ready")
 
     def submit(self, job) -> _Call:

@@ -134,7 +134,7 @@ class MapWorker:
         """Queue a call (run it now, in sequential mode)."""
         if self.process is not None:
             if not self.process.started:
-                self.process.start(self.scene, self.keyframes, self.gen, self.moments.state)
+                self.process.start(self.scene, self.keyframes, self.gen, self.moments)
             self._queue.append((job.k, self.process.submit(job)))
         elif self.parallel:
             self._queue.append((job.k, self._pool.submit(self._run, job)))

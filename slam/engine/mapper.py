@@ -108,11 +108,12 @@ class MapMoments:
         self.state = None
 
     def cpu_state(self) -> dict | None:
-        """``state`` with its tensors copied to the CPU (a checkpoint resumes on any device; the pipe to a mapper
-        process carries CPU tensors)."""
+        """``state`` with its tensors on the CPU (a checkpoint resumes on any device; the pipe to a mapper process
+        carries CPU tensors). No copy where they are there already: a call never writes into the state it was
+        given (it loads a copy) and replaces ``state`` when it ends."""
         if self.state is None:
             return None
-        return {name: {k: v.detach().cpu().clone() for k, v in st.items()} for name, st in self.state.items()}
+        return {name: {k: v.detach().cpu() for k, v in st.items()} for name, st in self.state.items()}
 
 
 class _Optimiser:

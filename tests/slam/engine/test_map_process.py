@@ -80,7 +80,7 @@ def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline
                            moments=moments)
         proc = MapProcess(cfg, s.intr, "cpu", lambda job, reply: reply)
         try:
-            proc.start(s.scene, s.keyframes, s.map_gen, state)
+            proc.start(s.scene, s.keyframes, s.map_gen, MapMoments(state))
             reply = proc.submit(MapJob(3, frame.color, frame.depth, s.state.est[-1], False, True)).result()
         finally:
             proc.close()
