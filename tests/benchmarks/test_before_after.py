@@ -1,22 +1,18 @@
 """benchmarks/before_after.py (shared by frame_breakdown.py): a variant's relative paths mean what they meant where
 the command was typed, though every run starts in its own checkout."""
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.benchmarks.conftest import load_script
+
 ROOT = Path(__file__).resolve().parents[2]
-SCRIPT = ROOT / "benchmarks" / "before_after.py"
 
 
 @pytest.fixture(scope="module")
 def before_after():
-    spec = importlib.util.spec_from_file_location("before_after", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("before_after")
 
 
 def test_relative_data_and_config_paths_are_made_absolute_preset_names_kept(before_after, tmp_path, monkeypatch):

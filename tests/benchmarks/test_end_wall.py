@@ -1,6 +1,5 @@
 """benchmarks/end_wall.py: its error measure on a known rotation, and a replay that resumes a real (tiny) run."""
 
-import importlib.util
 import json
 import math
 import sys
@@ -9,16 +8,15 @@ from pathlib import Path
 import pytest
 import torch
 
+from tests.benchmarks.conftest import load_script
+
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "end_wall.py"
 
 
 @pytest.fixture(scope="module")
 def end_wall():
     sys.path.insert(0, str(SCRIPT.parent))
-    spec = importlib.util.spec_from_file_location("end_wall", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("end_wall")
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,6 @@
 live call path (a query under autograd is counted forward and backward, a no-grad one forward only), and the
 counts equal the closed forms of a small Six-axis field."""
 
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -10,6 +9,7 @@ import pytest
 import torch
 
 import tdfields
+from tests.benchmarks.conftest import load_script
 
 BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
 
@@ -17,9 +17,7 @@ BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
 @pytest.fixture(scope="module")
 def bench():
     sys.path.insert(0, str(BENCH))
-    spec = importlib.util.spec_from_file_location("iteration_flops", BENCH / "iteration_flops.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("iteration_flops")
     yield module
     sys.path.remove(str(BENCH))
 

@@ -2,17 +2,15 @@
 measuring functions and ``main`` write every field of the JSON with sane values, and the parameter counts are the
 kinds' closed forms at the sizes matched to nerfstudio's constructor arguments."""
 
-import importlib.util
 import json
 import math
-from pathlib import Path
 
 import pytest
 import torch
 
 import tdfields
+from tests.benchmarks.conftest import load_script
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "nerf_encodings.py"
 R, C = 6, 2
 TOY_SPEED = {
     "cp": {"field": ("cp", {"resolution": R, "channels": C})},
@@ -34,10 +32,7 @@ CLOSED_FORM = {"cp": 3 * C * R, "triplane": 3 * C * R * R, "vector_matrix": 3 * 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("nerf_encodings", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("nerf_encodings")
 
 
 def test_parameters_are_the_closed_forms(bench):

@@ -2,7 +2,6 @@
 dropped frame's motion error is measured from the last frame before it that kept its depth, so drift before the
 gap does not count; and the copy it runs on zeroes the depth of the dropped frames only, their colour kept."""
 
-import importlib.util
 import math
 import sys
 from pathlib import Path
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 
 from slam.eval import write_tum_trajectory
+from tests.benchmarks.conftest import load_script
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "no_depth_study.py"
 TUM_FAST = Path(__file__).resolve().parents[3] / "shared" / "data" / "tum_fr1_rpy_0_124"
@@ -19,10 +19,7 @@ TUM_FAST = Path(__file__).resolve().parents[3] / "shared" / "data" / "tum_fr1_rp
 @pytest.fixture(scope="module")
 def study():
     sys.path.insert(0, str(SCRIPT.parent))
-    spec = importlib.util.spec_from_file_location("no_depth_study", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("no_depth_study")
 
 
 def _walk(n):

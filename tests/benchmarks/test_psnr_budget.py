@@ -1,21 +1,16 @@
 """benchmarks/psnr_budget.py's reading of its curves: the parameters a kind needs for a PSNR level (linear in log
 parameters between the budgets around it, never extrapolated) and the ratios to the reference kind."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "psnr_budget.py"
+from tests.benchmarks.conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("psnr_budget", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("psnr_budget")
 
 
 def rows(kind, points):

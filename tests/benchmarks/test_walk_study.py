@@ -2,7 +2,6 @@
 hour): ``--continue`` keeps what a stopped or finished sitting ran and runs only the missing (config, seed) pairs,
 refuses a partial file of another length, and the curves of seed 0 come from the records, not the run folders."""
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -10,14 +9,14 @@ from pathlib import Path
 import pytest
 import torch
 
+from tests.benchmarks.conftest import load_script
+
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "walk_study.py"
 
 
 @pytest.fixture
 def study(monkeypatch):
-    spec = importlib.util.spec_from_file_location("walk_study", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("walk_study")
     calls = []
 
     def fake_run(name, seed, frames, mesh_resolution, out):
