@@ -155,6 +155,9 @@ class TrackingConfig:
     gn_step_deg: float = num(0.01, lo=0, hi=90.0)
     # ours: later rounds draw fresh pixels and redo the outlier rule at the pose the previous round reached
     gn_rounds: int = num(1, lo=1, hi=100)
+    # ours: "every" evaluation brings the full normal equations (H from one coordinate backward per residual kind);
+    # "first": only a round's first, later ones the gradient alone (one backward pass) with that H kept
+    gn_hessian: str = choice("every", ("every", "first"))
     # ours: a prior towards the start pose: kappa times the mean curvature of the rotation / translation axes, the
     # same on every axis of each (0: none)
     gn_prior: float = num(0.0, lo=0, hi=1e6)

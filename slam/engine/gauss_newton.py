@@ -16,6 +16,10 @@ when a step moves the camera by less than ``gn_step_m`` metres and ``gn_step_deg
 evaluations. Rays are kept where the starting pose sees their surface inside the box, and the outlier rule
 (``outlier_factor``) is applied once, at the start.
 
+With ``tracking.gn_hessian: first`` only a round's first evaluation assembles ``H``; later ones bring ``b`` alone,
+half the loss's gradient in the tangent from one backward pass (:func:`_gradient_terms`), and the steps keep the
+first ``H``. Either way the evaluation that ends a round (a small step, or the last allowed) computes the loss alone.
+
 With ``tracking.gn_prior`` = kappa > 0 the solve minimises the loss plus ``e^T P e``, ``e`` the tangent from the
 start pose (the ICP start) and ``P`` kappa times the start's mean curvature per group of axes (rotation,
 translation), the same on each axis of a group (:func:`_prior`). One draw of pixels constrains some directions
@@ -90,38 +94,56 @@ def _loss(s, depth, color, rays: _Rays, cfg) -> torch.Tensor:
 
 
 def _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays: _Rays, cfg):
-    """``(H [6, 6], b [6])`` of the weighted normal equations at these points (float64)."""
+    """``(H [6, 6], b [6])`` of the weighted normal equations at these points (float64).
+
+    The rows are assembled without gathering each region's samples: every sample gets one row ``[p x g, g]`` and one
+    weight, zero outside the SDF regions, the band's ``T`` folded into its weight and residual
+    (:func:`_sdf_weights`), so ``H = A^T diag(W) A`` is one product over all samples. The colour channels share
+    one stacked assembly."""
     T, wt = cfg.scene.truncation, cfg.tracking.weights
     R, N = rays.z.shape
     gs = torch.autograd.grad(s, pts, torch.ones_like(s), retain_graph=True)[0]  # [R, N, 3] d s / d p
     d_ds = torch.autograd.grad(depth, s_l, torch.ones_like(depth), retain_graph=True)[0]  # [R, N]
-    rows, resid, weights = [], [], []
-    Dm = rays.D[:, None]
-    front, center, tail = sdf_regions(rays.z, rays.D, T)
-    sd = s.detach()
-    for mask, r, g, lam in ((front, sd - 1.0, gs, wt.fs), (center, rays.z + sd * T - Dm, T * gs, wt.center),
-                            (tail, rays.z + sd * T - Dm, T * gs, wt.tail)):
-        n = int(mask.sum())
-        if n and lam:
-            rows.append(torch.cat((torch.cross(pts[mask].detach(), g[mask], dim=-1), g[mask]), -1))
-            resid.append(r[mask])
-            weights.append(torch.full((n,), lam / n, dtype=sd.dtype, device=sd.device))
     p = pts.detach()
+    W, r = _sdf_weights(s.detach(), rays, T, wt)
+    A = torch.cat((torch.cross(p, gs, dim=-1), gs), -1).reshape(R * N, 6).double()
+    H = A.T @ (W.reshape(-1, 1) * A)
+    b = A.T @ (W * r).reshape(-1)
+    ray_rows, ray_res, ray_w = [], [], []
     if wt.depth:
-        gd = d_ds[..., None] * gs
-        rows.append(torch.cat((torch.cross(p, gd, dim=-1).sum(1), gd.sum(1)), -1))
-        resid.append(depth.detach() - rays.D)
-        weights.append(torch.full((R,), wt.depth / R, dtype=sd.dtype, device=sd.device))
+        ray_rows.append(d_ds[..., None] * gs)
+        ray_res.append(depth.detach() - rays.D)
+        ray_w.append(wt.depth / R)
     if wt.color:
         for c in range(3):
             dc_ds = torch.autograd.grad(color[:, c], s_l, torch.ones_like(depth), retain_graph=True)[0]
             grgb = torch.autograd.grad(rgb[..., c], pts, torch.ones_like(rgb[..., c]), retain_graph=c < 2)[0]
-            gc = dc_ds[..., None] * gs + w.detach()[..., None] * grgb
-            rows.append(torch.cat((torch.cross(p, gc, dim=-1).sum(1), gc.sum(1)), -1))
-            resid.append(color.detach()[:, c] - rays.C[:, c])
-            weights.append(torch.full((R,), wt.color / (3 * R), dtype=sd.dtype, device=sd.device))
-    J, r, W = torch.cat(rows).double(), torch.cat(resid).double(), torch.cat(weights).double()
-    return J.T @ (W[:, None] * J), J.T @ (W * r)
+            ray_rows.append(dc_ds[..., None] * gs + w.detach()[..., None] * grgb)
+            ray_res.append(color.detach()[:, c] - rays.C[:, c])
+            ray_w.append(wt.color / (3 * R))
+    if ray_rows:
+        g = torch.stack(ray_rows)  # [K, R, N, 3]: each per-ray residual's gradient at its ray's points
+        J = torch.cat((torch.cross(p.expand_as(g), g, dim=-1).sum(2), g.sum(2)), -1).double()  # [K, R, 6]
+        Wr = torch.tensor(ray_w, dtype=torch.float64, device=J.device)[:, None, None]
+        H = H + (J * Wr).reshape(-1, 6).T @ J.reshape(-1, 6)
+        b = b + (J * (Wr * torch.stack(ray_res).double()[..., None])).reshape(-1, 6).sum(0)
+    return H, b
+
+
+def _sdf_weights(sd: torch.Tensor, rays: _Rays, T: float, wt) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(W, r)`` ``[R, N]`` float64 per-sample weight and residual of the three SDF terms, for rows ``[p x g, g]``
+    with ``g`` the SDF's gradient: free space ``s - 1`` at ``fs / n_front``; the centre and the tail ``z + s T - D``,
+    whose gradient is ``T g``, at ``T^2 lambda / n`` with the residual divided by ``T`` (so ``W r`` carries one
+    ``T``); zero elsewhere (behind the band, and a term with no samples or no weight)."""
+    front, center, tail = sdf_regions(rays.z, rays.D, T)
+    sd, z, Dm = sd.double(), rays.z.double(), rays.D.double()[:, None]
+    W = torch.zeros_like(sd)
+    for mask, lam, scale in ((front, wt.fs, 1.0), (center, wt.center, T), (tail, wt.tail, T)):
+        n = int(mask.sum())
+        if n and lam:
+            W = W + mask.double() * (lam / n * scale * scale)
+    band = torch.where(front, sd - 1.0, (z + sd * T - Dm) / T)
+    return W, torch.where(W > 0, band, torch.zeros_like(band))
 
 
 def _draw_rays(scene, color, depth, intrinsics, T, cfg, generator) -> _Rays | None:
@@ -143,14 +165,36 @@ def _draw_rays(scene, color, depth, intrinsics, T, cfg, generator) -> _Rays | No
     return _Rays(dirs_cam[keep], z, D[keep], C[keep])
 
 
-def _evaluate(scene, T, rays, cfg, jacobian: bool):
-    pts = _points(T, rays).requires_grad_(jacobian)
-    with torch.set_grad_enabled(jacobian):
+def _gradient_terms(pts, s, rgb, s_l, rgb_l, depth, color, rays: _Rays, cfg) -> torch.Tensor:
+    """``b [6]`` (float64) of the normal equations alone: half the loss's gradient in the pose tangent, from one
+    backward pass to the points (the compositing's, then the SDF's and the colour's field backward together), where
+    :func:`_jacobian_terms` takes one per residual kind. ``b = J^T W r`` because the loss is ``r^T W r``."""
+    loss = _loss(s, depth, color, rays, cfg)
+    g_s, g_sl, g_rgb = torch.autograd.grad(loss, (s, s_l, rgb_l), allow_unused=True)
+    g_s = torch.zeros_like(s) if g_s is None else g_s  # the SDF reaches the loss directly and through compositing
+    if g_sl is not None:
+        g_s = g_s + g_sl
+    outs, grads = [s], [g_s]
+    if g_rgb is not None and rgb.requires_grad:
+        outs.append(rgb)
+        grads.append(g_rgb)
+    g = torch.autograd.grad(outs, pts, grads)[0].reshape(-1, 3)  # [R N, 3] d loss / d p
+    p = pts.detach().reshape(-1, 3)
+    return 0.5 * torch.cat((torch.cross(p, g, dim=-1).sum(0), g.sum(0))).double()
+
+
+def _evaluate(scene, T, rays, cfg, need: str = "loss"):
+    """``(loss, rendered depth [R], terms)`` at camera-to-world ``T`` ``[4, 4]``; ``terms`` by ``need``: "loss"
+    None, "gradient" ``(None, b)``, "hessian" ``(H, b)`` (None too when the loss is not finite)."""
+    pts = _points(T, rays).requires_grad_(need != "loss")
+    with torch.set_grad_enabled(need != "loss"):
         out = _render(scene, pts, rays, cfg.rendering.color_cutoff, cfg.rendering.fused)
         s, rgb, s_l, rgb_l, w, depth, color = out
         loss = float(_loss(s.detach(), depth.detach(), color.detach(), rays, cfg))
-        if not jacobian or not math.isfinite(loss):
+        if need == "loss" or not math.isfinite(loss):
             return loss, depth.detach(), None
+        if need == "gradient":
+            return loss, depth.detach(), (None, _gradient_terms(pts, s, rgb, s_l, rgb_l, depth, color, rays, cfg))
         return loss, depth.detach(), _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays, cfg)
 
 
@@ -184,33 +228,40 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
     rays = _draw_rays(scene, color, depth, intrinsics, T, cfg, generator)
     if rays is None:
         return None, float("nan"), "too few rays with valid depth inside the scene box", 0, float("nan")
-    _, rendered, _ = _evaluate(scene, T, rays, cfg, jacobian=False)
+    _, rendered, _ = _evaluate(scene, T, rays, cfg)
     inl = tracking_inliers(rendered, rays.D, tc.outlier_factor)
     rays = _Rays(rays.dirs_cam[inl], rays.z[inl], rays.D[inl], rays.C[inl])
     inliers = float(inl.float().mean())
-    loss, _, terms = _evaluate(scene, T, rays, cfg, jacobian=True)
+    loss, _, terms = _evaluate(scene, T, rays, cfg, "hessian")
     if terms is None:
         return None, float("nan"), "non-finite tracking loss", 1, inliers
+    H, b = terms
     lam, it, message = tc.gn_damping, 2, ""
-    P = _prior(terms[0], tc.gn_prior)
+    P = _prior(H, tc.gn_prior)
     e = torch.zeros(6, dtype=P.dtype, device=P.device)  # the tangent from the start: the summed steps (small motions)
     data_loss = loss
     eye = torch.eye(6, dtype=P.dtype, device=P.device)
+    # gn_hessian "first": later evaluations bring the gradient only and the step keeps the first H (a chord method:
+    # the loss still decides every step, and b = 0 where the round ends, whatever H)
+    later = "hessian" if tc.gn_hessian == "every" else "gradient"
     while it < iters:
-        H, b = terms
-        H, b = H + P, b + P @ e
-        step = torch.linalg.solve(H + lam * torch.diag(torch.diag(H)) + 1e-12 * eye, -b)
+        Hp = H + P
+        step = torch.linalg.solve(Hp + lam * torch.diag(torch.diag(Hp)) + 1e-12 * eye, -(b + P @ e))
         T_new = exp_se3(step.to(T.dtype)) @ T
         it += 1
-        new_data, _, new_terms = _evaluate(scene, T_new, rays, cfg, jacobian=True)
+        small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
+        # a small step ends the round whether it is kept or not, and so does the last evaluation: the loss only
+        new_data, _, new_terms = _evaluate(scene, T_new, rays, cfg, "loss" if small or it >= iters else later)
         e_new = e + step
         new_loss = new_data + float(e_new @ P @ e_new)
-        small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
-        if new_terms is not None and new_loss < loss:
-            T, loss, terms, lam, e, data_loss = T_new, new_loss, new_terms, lam / 3.0, e_new, new_data
+        if new_loss < loss:  # False for a non-finite loss
+            T, loss, lam, e, data_loss = T_new, new_loss, lam / 3.0, e_new, new_data
             if small:
                 message = "converged"
                 break
+            if new_terms is not None:
+                H = H if new_terms[0] is None else new_terms[0]
+                b = new_terms[1]
         else:
             lam *= 4.0
             if small or lam > 1e4:

@@ -13,6 +13,22 @@ def test_presets_exist_and_resolve():
         assert cfg.name == name
 
 
+def test_the_fast_preset_is_the_cpu_preset_with_the_measured_levers():
+    """tum/fr1_rpy-cpu-fast (docs/slam.md, "The fast preset") differs from tum/fr1_rpy-cpu only by the levers its
+    5-seed numbers were measured with."""
+    from dataclasses import asdict
+
+    fast, cpu = asdict(load_config("tum/fr1_rpy-cpu-fast")), asdict(load_config("tum/fr1_rpy-cpu"))
+    levers = {("tracking", "optimizer"): "gauss_newton", ("tracking", "gn_prior"): 0.03,
+              ("tracking", "gn_hessian"): "first", ("mapping", "schedule"): "by_need",
+              ("mapping", "optimizer_state"): "persistent", ("rendering", "fused"): True}
+    for (group, key), value in levers.items():
+        assert fast[group][key] == value and cpu[group][key] != value, (group, key)
+        fast[group][key] = cpu[group][key]
+    fast["name"] = cpu["name"]
+    assert fast == cpu
+
+
 def test_layering_base_dataset_scene():
     cfg = load_config("tum/fr1_desk")
     assert cfg.tracking.iters == 200 and cfg.tracking.lr_t == 0.01  # dataset layer

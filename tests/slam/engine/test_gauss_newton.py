@@ -40,18 +40,102 @@ def test_the_normal_equations_are_the_derivatives_of_the_loss(mapped):
     T = s.gt[5].clone()
     with tdfields.frozen(s.scene):
         rays = gn._draw_rays(s.scene, frame.color, frame.depth, s.intr, T, cfg, torch.Generator().manual_seed(3))
-        _, _, (H, b) = gn._evaluate(s.scene, T, rays, cfg, jacobian=True)
+        _, _, (H, b) = gn._evaluate(s.scene, T, rays, cfg, "hessian")
         h = 1e-4
         numeric = []
         for j in range(6):
             e = torch.zeros(6)
             e[j] = h
-            plus = gn._evaluate(s.scene, exp_se3(e) @ T, rays, cfg, jacobian=False)[0]
-            minus = gn._evaluate(s.scene, exp_se3(-e) @ T, rays, cfg, jacobian=False)[0]
+            plus = gn._evaluate(s.scene, exp_se3(e) @ T, rays, cfg)[0]
+            minus = gn._evaluate(s.scene, exp_se3(-e) @ T, rays, cfg)[0]
             numeric.append((plus - minus) / (2 * h))
     numeric = torch.tensor(numeric, dtype=torch.float64)
     assert torch.allclose(2 * b, numeric, rtol=0.05, atol=0.02 * float(numeric.abs().max()))
     assert bool((torch.linalg.eigvalsh(H) > 0).all())  # six observable directions
+
+
+def _residuals(scene, T, rays, cfg):
+    """The tracking loss's residuals and weights as docs/slam.md defines them (the oracle for ``H``): free space
+    ``s - 1`` (z < D - T), the band ``z + s T - D`` (centre |z - D| < 0.4 T, tail the rest of |z - D| <= T), depth
+    ``d - D`` and colour ``c - C``, each term a mean over its residuals times its weight."""
+    from slam.core.losses import sdf_regions
+    from slam.engine import gauss_newton as gn
+
+    T_, wt = cfg.scene.truncation, cfg.tracking.weights
+    s, _, _, _, _, depth, color = gn._render(scene, gn._points(T, rays), rays, 0.0, False)
+    front, center, tail = sdf_regions(rays.z, rays.D, T_)
+    band = rays.z + s * T_ - rays.D[:, None]
+    parts = [(s[front] - 1.0, wt.fs), (band[center], wt.center), (band[tail], wt.tail),
+             (depth - rays.D, wt.depth), ((color - rays.C).reshape(-1), wt.color)]
+    r = torch.cat([p for p, _ in parts]).double()
+    w = torch.cat([torch.full((len(p),), lam / max(len(p), 1), dtype=torch.float64) for p, lam in parts])
+    return r.detach(), w
+
+
+def test_the_normal_equations_matrix_is_the_residuals_jacobian(mapped):
+    """``H = J^T W J`` with ``J`` the residuals' central differences in the six tangent directions (the assembly
+    that folds every region into one product against the definition of each residual)."""
+    import tdfields
+    from slam.core.pose import exp_se3
+    from slam.engine import gauss_newton as gn
+
+    s, cfg, frame = mapped
+    T = s.gt[5].clone()
+    with tdfields.frozen(s.scene), torch.no_grad():
+        rays = gn._draw_rays(s.scene, frame.color, frame.depth, s.intr, T, cfg, torch.Generator().manual_seed(3))
+        r0, w = _residuals(s.scene, T, rays, cfg)
+        h, cols = 1e-4, []
+        for j in range(6):
+            e = torch.zeros(6)
+            e[j] = h
+            cols.append((_residuals(s.scene, exp_se3(e) @ T, rays, cfg)[0]
+                         - _residuals(s.scene, exp_se3(-e) @ T, rays, cfg)[0]) / (2 * h))
+    with tdfields.frozen(s.scene):
+        _, _, (H, b) = gn._evaluate(s.scene, T, rays, cfg, "hessian")
+    J = torch.stack(cols, 1)
+    H_fd = J.T @ (w[:, None] * J)
+    torch.testing.assert_close(H, H_fd, rtol=0.05, atol=0.02 * float(H_fd.abs().max()))
+    torch.testing.assert_close(b, J.T @ (w * r0), rtol=0.05, atol=0.02 * float(b.abs().max()))
+
+
+@pytest.mark.parametrize("fused", [False, True])
+def test_the_gradient_alone_is_the_normal_equations_right_hand_side(mapped, fused):
+    """``tracking.gn_hessian: first``'s one backward pass gives the ``b`` of the full normal equations."""
+    import tdfields
+    from slam.engine import gauss_newton as gn
+
+    s, cfg, frame = mapped
+    c = copy.deepcopy(cfg)
+    c.rendering.fused, c.rendering.color_cutoff = fused, 1e-3
+    T = s.gt[5].clone()
+    with tdfields.frozen(s.scene):
+        rays = gn._draw_rays(s.scene, frame.color, frame.depth, s.intr, T, c, torch.Generator().manual_seed(3))
+        loss_h, _, (_, b_h) = gn._evaluate(s.scene, T, rays, c, "hessian")
+        loss_g, _, (H_g, b_g) = gn._evaluate(s.scene, T, rays, c, "gradient")
+    assert loss_g == loss_h and H_g is None
+    torch.testing.assert_close(b_g, b_h, rtol=1e-4, atol=1e-6 * float(b_h.abs().max()))
+
+
+def test_the_evaluations_that_end_a_round_skip_the_jacobian_and_change_nothing(mapped, monkeypatch):
+    """A round's last evaluation (a small step, or the last allowed) asks for the loss alone; computing the full
+    normal equations there too ends at the same pose, bit for bit."""
+    from slam.core.pose import exp_se3, matrix_to_pose
+    from slam.engine import gauss_newton as gn
+    from slam.engine.tracker import track_frame
+
+    s, cfg, frame = mapped
+    xi = torch.tensor([math.radians(2.0) / math.sqrt(3)] * 3 + [0.02 / math.sqrt(3)] * 3)
+    start = matrix_to_pose(exp_se3(xi) @ s.gt[5])
+    c = copy.deepcopy(cfg)
+    c.tracking.optimizer = "gauss_newton"
+    evaluate, needs = gn._evaluate, []
+    monkeypatch.setattr(gn, "_evaluate", lambda *a: needs.append(a[4] if len(a) > 4 else "loss") or evaluate(*a))
+    skipped = track_frame(s.scene, frame.color, frame.depth, s.intr, start, c, torch.Generator().manual_seed(0), 6)
+    assert needs[0] == "loss" and needs[1] == "hessian" and needs[-1] == "loss" and len(needs) == skipped.iters
+    assert needs[2:-1] == ["hessian"] * (len(needs) - 3)
+    monkeypatch.setattr(gn, "_evaluate", lambda *a: evaluate(*a[:4], "hessian"))
+    full = track_frame(s.scene, frame.color, frame.depth, s.intr, start, c, torch.Generator().manual_seed(0), 6)
+    assert torch.equal(skipped.pose, full.pose) and skipped.loss == full.loss and skipped.iters == full.iters
 
 
 def test_the_fused_render_tail_gives_the_reference_normal_equations(mapped):
@@ -66,14 +150,15 @@ def test_the_fused_render_tail_gives_the_reference_normal_equations(mapped):
         c.rendering.fused = fused
         with tdfields.frozen(s.scene):
             rays = gn._draw_rays(s.scene, frame.color, frame.depth, s.intr, T, c, torch.Generator().manual_seed(3))
-            out[fused] = gn._evaluate(s.scene, T, rays, c, jacobian=True)
+            out[fused] = gn._evaluate(s.scene, T, rays, c, "hessian")
     (loss0, _, (H0, b0)), (loss1, _, (H1, b1)) = out[False], out[True]
     assert loss1 == pytest.approx(loss0, rel=1e-5)
     torch.testing.assert_close(H1, H0, rtol=1e-4, atol=1e-6 * float(H0.abs().max()))
     torch.testing.assert_close(b1, b0, rtol=1e-4, atol=1e-5 * float(b0.abs().max()))
 
 
-def test_it_converges_from_a_known_offset_in_a_handful_of_evaluations(mapped):
+@pytest.mark.parametrize("hessian", ["every", "first"])
+def test_it_converges_from_a_known_offset_in_a_handful_of_evaluations(mapped, hessian):
     """From an offset of a few cm and degrees, 8 Levenberg-Marquardt evaluations take the camera at least 5x closer
     to where it settles with a long budget (the tiny room's optimum is shallow: benchmarks/gn_convergence.py
     measures iterations to 1 mm / 0.1 deg on the full room), and closer than 8 Adam iterations do."""
@@ -88,6 +173,7 @@ def test_it_converges_from_a_known_offset_in_a_handful_of_evaluations(mapped):
     gn_cfg = copy.deepcopy(cfg)
     gn_cfg.tracking.optimizer = "gauss_newton"
     gn_cfg.tracking.gn_step_m, gn_cfg.tracking.gn_step_deg = 1e-6, 1e-5
+    gn_cfg.tracking.gn_hessian = hessian
 
     def run(c, iters):
         return track_frame(s.scene, frame.color, frame.depth, s.intr, start, c, torch.Generator().manual_seed(0),
