@@ -8,8 +8,10 @@ Steps (each with its own time limit, so one slow step cannot eat the others' tim
    pytest-benchmark, JSON kept.
 3. ``slam``: lrslam vs eslam on the TUM excerpt at the paper's TUM settings (``tum/fr1_rpy``), first
    ``--frames`` frames, through ``benchmarks/slam_compare.py``.
-4. ``gn-tracker``: the second-order tracker against Adam on the device (``benchmarks/gn_convergence.py --device``:
-   time per evaluation / iteration, evaluations to 1 mm and 0.1 degree from known offsets on the synthetic room).
+4. ``gn-tracker-every`` / ``-first``: the second-order tracker against Adam on the device
+   (``benchmarks/gn_convergence.py --device``: time per evaluation / iteration, evaluations to 1 mm and 0.1 degree
+   from known offsets on the synthetic room), with the normal equations' matrix at every evaluation and at a round's
+   first only (``tracking.gn_hessian``).
 
 ``--smoke`` runs the same steps end to end on the CPU at toy sizes (the bundled-style tiny synthetic sequence, a
 few iterations, the CPU field-speed cases run once): CI runs it so the script cannot rot between GPU loans.
@@ -142,19 +144,23 @@ def main(argv=None) -> int:
     steps.append(_run("slam", [py, "benchmarks/slam_compare.py", *sc[:2], "--representations", "lrslam", "eslam",
                                "--no-mesh", "--quiet", "--out", str(out / "slam"), *sc[2:], f"device={dev}"],
                       60 if args.smoke else 270, env, log))
-    # ---- 4. the second-order tracker against Adam on the device (smoke: 3 frames mapped, one test frame)
+    # ---- 4. the second-order tracker against Adam on the device (smoke: 3 frames mapped, one test frame), with its
+    # normal equations' matrix at every evaluation and at a round's first only (tracking.gn_hessian)
     gn = ["--frames", "3", "--test-frames", "3", "--offsets", "1.0", "--", "mapping.iters=3", "mapping.iters_first=5",
-          "tracking.pixels=100"] if args.smoke else []
-    steps.append(_run("gn-tracker", [py, "benchmarks/gn_convergence.py", "--out", str(out / "gn"), "--device", dev,
-                                     *gn], 120 if args.smoke else 150, env, log))
-    result = {"info": info, "steps": steps}
-    gn_json = out / "gn" / "gn_convergence.json"
-    if gn_json.is_file():
-        g = json.loads(gn_json.read_text())
-        result["gn_tracker"] = {"gn_ms_per_evaluation": 1000 * g["gn_s_per_evaluation"],
-                                "adam_ms_per_iteration": 1000 * g["adam_s_per_iteration"],
-                                "gn_evaluations_to_1mm_0.1deg": [c["gn_evals_to_1mm_0.1deg"] for c in g["cases"]],
-                                "adam_iterations_to_1mm_0.1deg": [c["adam_iters_to_1mm_0.1deg"] for c in g["cases"]]}
+          "tracking.pixels=100"] if args.smoke else ["--"]
+    result = {"info": info, "steps": steps, "gn_tracker": {}}
+    for mode in ("every", "first"):
+        steps.append(_run(f"gn-tracker-{mode}", [py, "benchmarks/gn_convergence.py", "--out", str(out / f"gn_{mode}"),
+                                                 "--device", dev, *gn, f"tracking.gn_hessian={mode}"],
+                          120 if args.smoke else 150, env, log))
+        gn_json = out / f"gn_{mode}" / "gn_convergence.json"
+        if gn_json.is_file():
+            g = json.loads(gn_json.read_text())
+            result["gn_tracker"][mode] = {
+                "gn_ms_per_evaluation": 1000 * g["gn_s_per_evaluation"],
+                "adam_ms_per_iteration": 1000 * g["adam_s_per_iteration"],
+                "gn_evaluations_to_1mm_0.1deg": [c["gn_evals_to_1mm_0.1deg"] for c in g["cases"]],
+                "adam_iterations_to_1mm_0.1deg": [c["adam_iters_to_1mm_0.1deg"] for c in g["cases"]]}
     sc_json = out / "slam" / "slam_compare.json"
     if sc_json.is_file():
         result["slam"] = json.loads(sc_json.read_text())["summary"]
@@ -171,11 +177,14 @@ def main(argv=None) -> int:
         lines += ["", "| representation | ATE RMSE cm | FPT s |", "|---|---|---|"]
         lines += [f"| {r['representation']} | {r['ate_rmse_cm']['mean']:.2f} | {r['fpt_s']['median']:.3f} |"
                   for r in result["slam"]]
-    if "gn_tracker" in result:
-        g = result["gn_tracker"]
-        lines += ["", "| tracker | ms per evaluation / iteration | to 1 mm and 0.1 degree (per case) |", "|---|---|---|",
-                  f"| Levenberg-Marquardt | {g['gn_ms_per_evaluation']:.1f} | {g['gn_evaluations_to_1mm_0.1deg']} |",
-                  f"| Adam | {g['adam_ms_per_iteration']:.1f} | {g['adam_iterations_to_1mm_0.1deg']} |"]
+    if result["gn_tracker"]:
+        lines += ["", "| tracker | ms per evaluation / iteration | to 1 mm and 0.1 degree (per case) |",
+                  "|---|---|---|"]
+        for mode, g in result["gn_tracker"].items():
+            lines.append(f"| Levenberg-Marquardt, matrix {'every evaluation' if mode == 'every' else 'once a round'} | "
+                         f"{g['gn_ms_per_evaluation']:.1f} | {g['gn_evaluations_to_1mm_0.1deg']} |")
+        g = next(iter(result["gn_tracker"].values()))
+        lines.append(f"| Adam | {g['adam_ms_per_iteration']:.1f} | {g['adam_iterations_to_1mm_0.1deg']} |")
     if "field_speed" in result:
         lines += ["", "| case | median ms |", "|---|---|"]
         lines += [f"| {b['name']} | {b['median_ms']:.3f} |" for b in result["field_speed"]]
