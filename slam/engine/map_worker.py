@@ -230,13 +230,14 @@ class MapWorker:
         only their results are applied).
 
         Raises:
-            RuntimeError: the tracker's map does not fit this scene (another config)."""
+            RuntimeError: the tracker's map or the carried moments do not fit this scene (another config)."""
         if state["track_scene"] is not None:
             with torch.no_grad():
                 fit_to_state(self.track_scene, state["track_scene"])  # a grown map: its size first
                 self.track_scene.load_state_dict(state["track_scene"])
         self._applied_any = bool(state["applied_any"])
         self.moments = MapMoments(state.get("moments"))  # a checkpoint from before the key: none carried
+        self.moments.check(self.scene)
         self._queue = []
         for p in state["pending"]:
             job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])

@@ -107,6 +107,18 @@ class MapMoments:
         """Forget the moments (a grown map's factors have other shapes): the next call starts a fresh Adam."""
         self.state = None
 
+    def check(self, scene) -> None:
+        """Raise RuntimeError unless every moment belongs to a parameter of ``scene`` and has its shape (moments read
+        from a checkpoint: a grown map resets them, so they always fit the map they were saved with)."""
+        params = dict(scene.named_parameters())
+        for name, st in (self.state or {}).items():
+            if name not in params:
+                raise RuntimeError(f"carried Adam moments of {name}, which this scene has no parameter of")
+            for part in ("exp_avg", "exp_avg_sq"):
+                if tuple(st[part].shape) != tuple(params[name].shape):
+                    raise RuntimeError(f"carried Adam moments of {name} ({part}) have shape {tuple(st[part].shape)}, "
+                                       f"the parameter {tuple(params[name].shape)}")
+
     def cpu_state(self) -> dict | None:
         """``state`` with its tensors on the CPU (a checkpoint resumes on any device; the pipe to a mapper process
         carries CPU tensors). No copy where they are there already: a call never writes into the state it was

@@ -125,6 +125,7 @@ def load_run(path: Path, cfg=None) -> dict:
         found = run.get("format") if isinstance(run, dict) else None
         raise SlamInputError(f"{path}: this checkpoint holds no resumable run state of format {RUN_FORMAT} "
                              f"(found {found or 'none'}: written by another version?)")
+    _check_finite(path, ckpt)
     if cfg is not None:
         written = ckpt.get("config") or {}
         added = sorted(set(flatten(cfg.to_dict())) - set(flatten(written))) if written else []
@@ -138,6 +139,33 @@ def load_run(path: Path, cfg=None) -> dict:
                 f"{'; ...' if len(diff) > 4 else ''}): was a new run started into this folder? Run it again "
                 "without --resume, or into another --out")
     return ckpt
+
+
+def _maps(ckpt: dict):
+    """``(where, name, tensor)`` for every tensor of the maps a checkpoint holds: the mapper's, the tracker's copy,
+    the maps of the calls still pending, and the carried Adam moments."""
+    run = ckpt["extra"]["run"]
+    trees = [("map", ckpt.get("state_dict")), ("tracker's map", run.get("track_scene"))]
+    trees += [(f"map of the pending call of frame {p.get('k')}", p.get("snapshot")) for p in run.get("pending") or []
+              if isinstance(p, dict)]
+    for where, tree in trees:
+        for name, t in (tree or {}).items():
+            yield where, name, t
+    for name, state in (run.get("moments") or {}).items():
+        for part, t in state.items():
+            yield "carried Adam moments", f"{name} ({part})", t
+
+
+def _check_finite(path: Path, ckpt: dict) -> None:
+    """Refuse a checkpoint whose maps hold NaN or infinity (a damaged or hand-edited file): resumed, every later
+    mapping step would read them and the run would go on silently wrong."""
+    for where, name, t in _maps(ckpt):
+        if isinstance(t, torch.Tensor) and t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            bad = int((~torch.isfinite(t)).sum())
+            prev = previous_path(path)
+            hint = f": resume from the one before it (mv {prev} {path})" if prev.is_file() else ""
+            raise SlamInputError(f"{path}: the {where} holds {bad} non-finite value(s) in {name}{hint}, or run again "
+                                 "without --resume")
 
 
 #: keys a resumed run may change: they decide where the run computes and when it stops or writes, never what it

@@ -224,3 +224,32 @@ def test_the_warm_up_carries_no_moments_and_a_growth_forgets_them(setup):
     worker.grow(torch.full((3,), 0.1), torch.zeros(3))
     assert worker.moments.state is None
     worker.close()
+
+
+def test_carried_moments_that_do_not_fit_the_scene_are_refused_when_a_checkpoint_is_loaded(setup):
+    """A worker restored with moments of a parameter the scene lacks, or of another shape, raises at once (the
+    system turns it into the config error), not at the first mapping call on the mapper's thread."""
+    from slam.engine.map_worker import MapWorker
+
+    cfg, s, frame = setup
+    c = copy.deepcopy(cfg)
+    c.mapping.optimizer_state = "persistent"
+    scene = copy.deepcopy(s.scene)
+    moments = mapper.MapMoments()
+    mapper.map_frame(scene, 5, frame.color, frame.depth, s.state.est[-1], s.intr,
+                     KeyframeStore([copy.deepcopy(kf) for kf in s.keyframes.frames]), c,
+                     torch.Generator().manual_seed(3), moments=moments)
+    worker = MapWorker(scene, KeyframeStore(), c, s.intr, torch.Generator().manual_seed(3), parallel=False)
+    state = worker.state_dict()
+    state["moments"] = moments.cpu_state()
+    worker.load_state_dict(state)  # the moments as saved fit
+    name = "fields.geometry.levels.0.factors.x"
+    wrong_shape = copy.deepcopy(state)
+    wrong_shape["moments"][name]["exp_avg_sq"] = torch.zeros(3, 3)
+    with pytest.raises(RuntimeError, match=f"moments of {name} \\(exp_avg_sq\\) have shape \\(3, 3\\)"):
+        worker.load_state_dict(wrong_shape)
+    stray = copy.deepcopy(state)
+    stray["moments"]["fields.nothing"] = stray["moments"][name]
+    with pytest.raises(RuntimeError, match="fields.nothing, which this scene has no parameter of"):
+        worker.load_state_dict(stray)
+    worker.close()

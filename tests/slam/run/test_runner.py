@@ -174,6 +174,7 @@ def test_carried_map_moments_come_back_with_a_resume(tiny_seq, tmp_path, monkeyp
     import slam.engine.map_worker as map_worker
     from slam.config import load_config
     from slam.engine.mapper import MapMoments
+    from slam.errors import SlamInputError
     from slam.run.checkpoint import load_run
     from slam.run.runner import RunInterrupted, run_to_folder
 
@@ -187,6 +188,14 @@ def test_carried_map_moments_come_back_with_a_resume(tiny_seq, tmp_path, monkeyp
     # frames 1 and 2, 3 iterations each
     assert {float(v["step"]) for v in moments.values()} == {6.0}
     shutil.copytree(out, tmp_path / "dropped")
+    payload = torch.load(out / "checkpoint.pt", weights_only=True)
+    name = next(iter(payload["extra"]["run"]["moments"]))
+    payload["extra"]["run"]["moments"][name]["exp_avg_sq"].view(-1)[0] = float("inf")
+    (tmp_path / "poisoned").mkdir()
+    shutil.copy(out / "config.yaml", tmp_path / "poisoned" / "config.yaml")
+    torch.save(payload, tmp_path / "poisoned" / "checkpoint.pt")
+    with pytest.raises(SlamInputError, match=f"carried Adam moments holds 1 non-finite value\\(s\\) in {name}"):
+        run_to_folder(cfg, tmp_path / "poisoned", progress=False, mesh=False, resume=True)
     run_to_folder(cfg, out, progress=False, mesh=False, resume=True)
     assert _traj(out) == _traj(tmp_path / "full")
     monkeypatch.setattr(map_worker, "MapMoments", lambda state=None: MapMoments(None))
@@ -228,7 +237,8 @@ def test_a_run_stopped_after_its_box_grew_resumes_to_the_uninterrupted_run(tiny_
 
 def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, capsys):
     """--stop-after is a resumable stop; a truncated checkpoint is refused in one line and the one before it is
-    kept; a checkpoint written under another config than config.yaml is refused, naming the key."""
+    kept, and so is one whose map holds NaN (naming the tensor); a checkpoint written under another config than
+    config.yaml is refused, naming the key."""
     from slam.run.checkpoint import previous_path
     from slam.cli import main
 
@@ -250,6 +260,13 @@ def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, caps
     assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "run state is incomplete or damaged (KeyError: 'guard')" in err[0]
+    payload = torch.load(prev, weights_only=True)
+    name = next(k for k, t in payload["state_dict"].items() if t.numel() > 2)
+    payload["state_dict"][name].view(-1)[:2] = float("nan")  # readable, but the map is poisoned
+    torch.save(payload, ckpt)
+    assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"the map holds 2 non-finite value(s) in {name}" in err[0] and f"mv {prev}" in err[0]
     prev.replace(ckpt)
     assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 0
     # a new run with another config started into the folder (it writes config.yaml first) and killed before its
