@@ -3,7 +3,8 @@
 Steps (each with its own time limit, so one slow step cannot eat the others' time):
 
 1. ``cuda-tests``: the Triton kernel's tests compiled for the GPU (``TRITON_INTERPRET=0``), and a short SLAM run
-   with ``--device cuda`` in both loop modes (sequential, parallel) and with the mapper in its own process.
+   with ``--device cuda`` in both loop modes (sequential, parallel), with the mapper in its own process, and with
+   the levers of ``tum/fr1_rpy-cpu-fast`` (carried Adam moments on the device among them).
 2. ``field-speed``: the field-speed suite's CUDA cases (reference, Triton, ESLAM's grid_sample) with
    pytest-benchmark, JSON kept.
 3. ``slam``: lrslam vs eslam on the TUM excerpt at the paper's TUM settings (``tum/fr1_rpy``), first
@@ -122,10 +123,14 @@ def main(argv=None) -> int:
     seq = tiny_sequence(out)
     tiny = ["data.max_frames=6", "tracking.iters=3", "tracking.pixels=100", "mapping.iters=3", "mapping.iters_first=5",
             "mapping.pixels=200", "rendering.n_stratified=8", "rendering.n_importance=4"]
-    # the third: the mapper in a child process (mapper_process), whose map lives on the device too
+    # the third: the mapper in a child process (mapper_process), whose map lives on the device too; the fourth: the
+    # levers of tum/fr1_rpy-cpu-fast (second-order tracker, matrix once a round, mapping by need, carried moments on
+    # the device, the fused tail, which falls back to PyTorch ops there)
+    fast = ["parallel=true", "tracking.optimizer=gauss_newton", "tracking.gn_hessian=first", "mapping.schedule=by_need",
+            "mapping.need_young=2", "mapping.optimizer_state=persistent", "rendering.fused=true"]
     for mode, over in (("false", ["parallel=false"]), ("true", ["parallel=true"]),
-                       ("process", ["parallel=true", "mapper_process=true"])):
-        steps.append(_run(f"slam-{dev}-parallel={mode}",
+                       ("process", ["parallel=true", "mapper_process=true"]), ("fast", fast)):
+        steps.append(_run(f"slam-{dev}-parallel={mode}" if mode != "fast" else f"slam-{dev}-fast-levers",
                           [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", "--device", dev, "--data", str(seq),
                            "--out", str(out / f"tiny_{mode}"), *tiny, *over], 120, env, log))
     # ---- 2. field speed
