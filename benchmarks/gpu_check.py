@@ -128,9 +128,11 @@ def main(argv=None) -> int:
     # the device, the fused tail, which falls back to PyTorch ops there)
     fast = ["parallel=true", "tracking.optimizer=gauss_newton", "tracking.gn_hessian=first", "mapping.schedule=by_need",
             "mapping.need_young=2", "mapping.optimizer_state=persistent", "rendering.fused=true"]
-    for mode, over in (("false", ["parallel=false"]), ("true", ["parallel=true"]),
-                       ("process", ["parallel=true", "mapper_process=true"]), ("fast", fast)):
-        steps.append(_run(f"slam-{dev}-parallel={mode}" if mode != "fast" else f"slam-{dev}-fast-levers",
+    for mode, name, over in (("false", "parallel=false", ["parallel=false"]),
+                             ("true", "parallel=true", ["parallel=true"]),
+                             ("process", "parallel=process", ["parallel=true", "mapper_process=true"]),
+                             ("fast", "fast-levers", fast)):
+        steps.append(_run(f"slam-{dev}-{name}",
                           [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", "--device", dev, "--data", str(seq),
                            "--out", str(out / f"tiny_{mode}"), *tiny, *over], 120, env, log))
     # ---- 2. field speed

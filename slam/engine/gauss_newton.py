@@ -165,11 +165,11 @@ def _draw_rays(scene, color, depth, intrinsics, T, cfg, generator) -> _Rays | No
     return _Rays(dirs_cam[keep], z, D[keep], C[keep])
 
 
-def _gradient_terms(pts, s, rgb, s_l, rgb_l, depth, color, rays: _Rays, cfg) -> torch.Tensor:
-    """``b [6]`` (float64) of the normal equations alone: half the loss's gradient in the pose tangent, from one
-    backward pass to the points (the compositing's, then the SDF's and the colour's field backward together), where
-    :func:`_jacobian_terms` takes one per residual kind. ``b = J^T W r`` because the loss is ``r^T W r``."""
-    loss = _loss(s, depth, color, rays, cfg)
+def _gradient_terms(loss, pts, s, rgb, s_l, rgb_l) -> torch.Tensor:
+    """``b [6]`` (float64) of the normal equations alone: half the gradient of ``loss`` (a scalar tensor with its
+    graph) in the pose tangent, from one backward pass to the points (the compositing's, then the SDF's and the
+    colour's field backward together), where :func:`_jacobian_terms` takes one per residual kind. ``b = J^T W r``
+    because the loss is ``r^T W r``."""
     g_s, g_sl, g_rgb = torch.autograd.grad(loss, (s, s_l, rgb_l), allow_unused=True)
     g_s = torch.zeros_like(s) if g_s is None else g_s  # the SDF reaches the loss directly and through compositing
     if g_sl is not None:
@@ -190,11 +190,14 @@ def _evaluate(scene, T, rays, cfg, need: str = "loss"):
     with torch.set_grad_enabled(need != "loss"):
         out = _render(scene, pts, rays, cfg.rendering.color_cutoff, cfg.rendering.fused)
         s, rgb, s_l, rgb_l, w, depth, color = out
-        loss = float(_loss(s.detach(), depth.detach(), color.detach(), rays, cfg))
+        # the gradient mode differentiates the loss itself; the others need its value only
+        loss_t = _loss(s, depth, color, rays, cfg) if need == "gradient" else _loss(
+            s.detach(), depth.detach(), color.detach(), rays, cfg)
+        loss = float(loss_t)
         if need == "loss" or not math.isfinite(loss):
             return loss, depth.detach(), None
         if need == "gradient":
-            return loss, depth.detach(), (None, _gradient_terms(pts, s, rgb, s_l, rgb_l, depth, color, rays, cfg))
+            return loss, depth.detach(), (None, _gradient_terms(loss_t, pts, s, rgb, s_l, rgb_l))
         return loss, depth.detach(), _jacobian_terms(pts, s, rgb, s_l, rgb_l, w, depth, color, rays, cfg)
 
 

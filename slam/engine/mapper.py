@@ -108,8 +108,9 @@ class MapMoments:
         self.state = None
 
     def check(self, scene) -> None:
-        """Raise RuntimeError unless every moment belongs to a parameter of ``scene`` and has its shape (moments read
-        from a checkpoint: a grown map resets them, so they always fit the map they were saved with)."""
+        """Raise RuntimeError unless every moment belongs to a parameter of ``scene`` and has its shape (checked when
+        a checkpoint is loaded and before a call loads them: a grown map resets them, so they fit the map they were
+        kept for)."""
         params = dict(scene.named_parameters())
         for name, st in (self.state or {}).items():
             if name not in params:
@@ -117,7 +118,7 @@ class MapMoments:
             for part in ("exp_avg", "exp_avg_sq"):
                 if tuple(st[part].shape) != tuple(params[name].shape):
                     raise RuntimeError(f"carried Adam moments of {name} ({part}) have shape {tuple(st[part].shape)}, "
-                                       f"the parameter {tuple(params[name].shape)}")
+                                       f"the parameter {tuple(params[name].shape)} (a grown map must reset them)")
 
     def cpu_state(self) -> dict | None:
         """``state`` with its tensors on the CPU (a checkpoint resumes on any device; the pipe to a mapper process
@@ -147,6 +148,7 @@ class _Optimiser:
         else:
             self.map = adam(groups)
             self.names = {p: n for n, p in scene.named_parameters()}
+            self.moments.check(scene)
             self._load(self.moments.state or {})
             self.poses = adam(cam_groups) if cam_groups else None
         self.params = [p for g in groups + cam_groups for p in g["params"]]
@@ -154,10 +156,6 @@ class _Optimiser:
     def _load(self, state: dict) -> None:
         for p, name in self.names.items():
             if name in state:
-                if state[name]["exp_avg"].shape != p.shape:
-                    raise RuntimeError(f"carried Adam moments of {name} have shape "
-                                       f"{tuple(state[name]['exp_avg'].shape)}, the parameter {tuple(p.shape)} "
-                                       "(a grown map must reset them)")
                 # on the parameter's device: a checkpoint's moments are on the CPU (fused Adam wants them beside it)
                 self.map.state[p] = {k: v.detach().to(p.device, copy=True) for k, v in state[name].items()}
 

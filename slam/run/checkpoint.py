@@ -99,12 +99,16 @@ def _read(path: Path) -> dict:
     except FileNotFoundError:
         raise SlamInputError(f"{path}: no checkpoint to resume from") from None
     except ValueError as exc:
-        prev = previous_path(path)
-        hint = ""
-        if prev.is_file():
-            hint = (f"; the checkpoint before it is kept: mv {prev} {path} and resume again (it goes on from an "
-                    "earlier frame, to the same result)")
-        raise SlamInputError(f"{exc}{hint}") from None
+        raise SlamInputError(f"{exc}{_previous_hint(path)}") from None
+
+
+def _previous_hint(path: Path) -> str:
+    """How to resume from the checkpoint kept before ``path`` ("" when there is none)."""
+    prev = previous_path(path)
+    if not prev.is_file():
+        return ""
+    return (f"; the checkpoint before it is kept: mv {prev} {path} and resume again (it goes on from an earlier "
+            "frame, to the same result)")
 
 
 def load_run(path: Path, cfg=None) -> dict:
@@ -162,10 +166,8 @@ def _check_finite(path: Path, ckpt: dict) -> None:
     for where, name, t in _maps(ckpt):
         if isinstance(t, torch.Tensor) and t.is_floating_point() and not bool(torch.isfinite(t).all()):
             bad = int((~torch.isfinite(t)).sum())
-            prev = previous_path(path)
-            hint = f": resume from the one before it (mv {prev} {path})" if prev.is_file() else ""
-            raise SlamInputError(f"{path}: the {where} holds {bad} non-finite value(s) in {name}{hint}, or run again "
-                                 "without --resume")
+            raise SlamInputError(f"{path}: the {where} holds {bad} non-finite value(s) in {name}"
+                                 f"{_previous_hint(path)}; or run again without --resume")
 
 
 #: keys a resumed run may change: they decide where the run computes and when it stops or writes, never what it
