@@ -202,6 +202,9 @@ class MappingConfig:
     # ours (slam/engine/mapper.py, MapMoments): per_call is ESLAM's fresh Adam every call; persistent carries the
     # map's Adam moments from call to call (as Co-SLAM's one map optimiser), the BA poses' Adam still fresh per call
     optimizer_state: str = choice("per_call", ("per_call", "persistent"))
+    # ours (slam/engine/mapper.py): "render" maps the window's pixels without a depth reading too (their colour alone,
+    # after a no-grad SDF pass to place their samples); "skip" maps only pixels with depth, as the tracker does
+    rays_without_depth: str = choice("render", ("render", "skip"))
 
 
 @dataclass

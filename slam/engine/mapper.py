@@ -194,7 +194,7 @@ def _loss(scene, colors, depths, poses, intrinsics, cfg: Config, per_frame: int,
     rendered = render_pixels(scene, u=u, v=v, depth=depths[fidx, v, u], color=colors[fidx, v, u],
                              c2w=pose_to_matrix(poses)[fidx], intrinsics=intrinsics, rendering=cfg.rendering,
                              truncation=cfg.scene.truncation, perturb=cfg.rendering.perturb, generator=generator,
-                             depth_required=False)
+                             depth_required=cfg.mapping.rays_without_depth == "skip")
     if rendered is None:
         return None
     out, D, C = rendered

@@ -253,3 +253,34 @@ def test_carried_moments_that_do_not_fit_the_scene_are_refused_when_a_checkpoint
     with pytest.raises(RuntimeError, match="fields.nothing, which this scene has no parameter of"):
         worker.load_state_dict(stray)
     worker.close()
+
+
+def test_rays_without_depth_are_mapped_on_colour_or_skipped_by_the_config(setup, monkeypatch):
+    import slam.core.rendering as rendering
+
+    cfg, s, frame = setup
+    real = rendering.render_rays
+    depth = frame.depth.clone()
+    depth[:, : depth.shape[1] // 2] = 0.0  # the current frame's left half has no depth reading
+    seen = {}
+    for rule in ("render", "skip"):
+        seen[rule] = []
+
+        def spy(origins, dirs, d, *args, _into=seen[rule], **kwargs):
+            _into.append(d.detach().clone())
+            return real(origins, dirs, d, *args, **kwargs)
+
+        monkeypatch.setattr(rendering, "render_rays", spy)
+        c = copy.deepcopy(cfg)
+        c.mapping.iters, c.mapping.rays_without_depth = 2, rule
+        keyframes = KeyframeStore([copy.deepcopy(kf) for kf in s.keyframes.frames])
+        res = mapper.map_frame(copy.deepcopy(s.scene), 5, frame.color, depth, s.state.est[-1], s.intr, keyframes, c,
+                               torch.Generator().manual_seed(3))
+        assert res.ok and len(seen[rule]) == 2
+    per_frame = cfg.mapping.pixels // len(res.window)
+    # render: about half of the current frame's share of pixels has no depth and is mapped on its colour
+    assert all(0.3 * per_frame < int((d <= 0).sum()) < 0.7 * per_frame for d in seen["render"])
+    # skip: the same pixels drawn (the first iteration, before the draws differ), those without depth left out
+    first = seen["render"][0]
+    assert torch.equal(seen["skip"][0], first[first > 0])
+    assert all(bool((d > 0).all()) for d in seen["skip"])
