@@ -193,7 +193,7 @@ def _evaluate(scene, T, rays, cfg, need: str = "loss"):
         # the gradient mode differentiates the loss itself; the others need its value only
         loss_t = _loss(s, depth, color, rays, cfg) if need == "gradient" else _loss(
             s.detach(), depth.detach(), color.detach(), rays, cfg)
-        loss = float(loss_t)
+        loss = float(loss_t.detach())
         if need == "loss" or not math.isfinite(loss):
             return loss, depth.detach(), None
         if need == "gradient":
