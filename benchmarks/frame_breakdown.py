@@ -8,7 +8,11 @@ relocalisation), ``track_frame`` (the tracker, recovery attempts included) and `
 in the mapper's thread in parallel mode) -- are wrapped with timers wherever a module holds them, and the run's
 ``metrics.json`` gives the loop time and ``mapping_wait_s``. Per frame: ``icp_s``, ``tracking_s`` (the tracker
 alone, the ICP start not included), ``mapping_s`` (the mapping calls' time divided by the frames; in parallel mode
-it overlaps tracking), ``wait_s`` and ``loop_s``; medians over repeats.
+it overlaps tracking), ``wait_s`` and ``loop_s``; medians over repeats. ``minor_faults_per_frame`` counts the
+process's minor page faults (its mapper process's included), start-up and all, over the frames, and
+``minor_faults_per_call`` those of the calling thread inside each timed function (not counted for a mapper
+process): each is a fresh page the C allocator handed out, the cost ``slam.engine.runtime.keep_freed_memory``
+exists to avoid.
 
     git worktree add /tmp/before 29d2223
     python benchmarks/frame_breakdown.py --out benchmarks/results/frame_breakdown --repeats 2 \\
@@ -49,7 +53,8 @@ for m in pkgutil.walk_packages(slam.__path__, "slam."):
         importlib.import_module(m.name)
     except Exception:
         pass
-totals = {{n: [0.0, 0] for n in {timed!r}}}
+import resource
+totals = {{n: [0.0, 0, 0] for n in {timed!r}}}
 lock = threading.Lock()
 originals = {{}}
 for mod in list(sys.modules.values()):
@@ -59,13 +64,14 @@ for mod in list(sys.modules.values()):
             originals.setdefault(id(f), (n, f))
 def wrap(n, f):
     def timed(*a, **k):
-        t0 = time.perf_counter()
+        t0, f0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
         try:
             return f(*a, **k)
         finally:
             with lock:
                 totals[n][0] += time.perf_counter() - t0
                 totals[n][1] += 1
+                totals[n][2] += resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - f0
     return timed
 wrapped = {{i: wrap(n, f) for i, (n, f) in originals.items()}}
 for mod in list(sys.modules.values()):
@@ -74,7 +80,10 @@ for mod in list(sys.modules.values()):
         if f is not None and id(f) in wrapped:
             setattr(mod, n, wrapped[id(f)])
 rc = slam.cli.main({argv!r})
-json.dump({{n: {{"s": v[0], "calls": v[1]}} for n, v in totals.items()}}, open({out!r}, "w"))
+faults = sum(resource.getrusage(w).ru_minflt for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+res = {{n: {{"s": v[0], "calls": v[1], "minor_faults": v[2]}} for n, v in totals.items()}}
+res["minor_faults"] = faults
+json.dump(res, open({out!r}, "w"))
 sys.exit(rc)
 """
 
@@ -101,14 +110,17 @@ def run_variant(v: dict, out: Path, repeat: int) -> dict:
             "fpt_s": m["fpt_s"], "loop_s": m.get("loop_s"), "per_frame": {
                 "icp_s": icp["s"] / n, "tracking_s": track["s"] / n, "mapping_s": mapping["s"] / n,
                 "wait_s": (m.get("mapping_wait_s") or 0.0) / n, "loop_s": (m.get("loop_s") or float("nan")) / n},
+            "minor_faults_per_frame": t.get("minor_faults", 0) / n,
             "calls": {"icp": icp["calls"], "tracking": track["calls"], "mapping": mapping["calls"]},
             "per_call_s": {"icp": icp["s"] / max(icp["calls"], 1), "tracking": track["s"] / max(track["calls"], 1),
-                           "mapping": mapping["s"] / max(mapping["calls"], 1)}}
+                           "mapping": mapping["s"] / max(mapping["calls"], 1)},
+            "minor_faults_per_call": {k: c.get("minor_faults", float("nan")) / max(c["calls"], 1)
+                                      for k, c in (("icp", icp), ("tracking", track), ("mapping", mapping))}}
 
 
 def table(runs: list[dict], names: list[str]) -> str:
-    lines = ["| variant | runs | per frame: loop | tracking | ICP | mapping (calls / frame) | waiting | FPT | ATE cm |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| variant | runs | per frame: loop | tracking | ICP | mapping (calls / frame) | waiting | minor faults "
+             "| FPT | ATE cm |", "|---|---|---|---|---|---|---|---|---|---|"]
     base = None
     for name in names:
         rs = [r for r in runs if r["variant"] == name]
@@ -116,9 +128,10 @@ def table(runs: list[dict], names: list[str]) -> str:
         fpt = statistics.median(r["fpt_s"] for r in rs)
         base = base or fpt
         calls = rs[0]["calls"]["mapping"] / rs[0]["frames"]
+        faults = statistics.median(r.get("minor_faults_per_frame", float("nan")) for r in rs)
         lines.append(f"| {name} | {len(rs)} | {med['loop_s'] * 1000:.0f} ms | {med['tracking_s'] * 1000:.0f} ms | "
                      f"{med['icp_s'] * 1000:.0f} ms | {med['mapping_s'] * 1000:.0f} ms ({calls:.2f}) | "
-                     f"{med['wait_s'] * 1000:.0f} ms | {fpt:.3f} s ({fpt / base:.2f}x) | "
+                     f"{med['wait_s'] * 1000:.0f} ms | {faults:.0f} | {fpt:.3f} s ({fpt / base:.2f}x) | "
                      f"{', '.join(sorted({'%.2f' % r['ate_rmse_cm'] for r in rs}))} |")
     return "\n".join(lines)
 
@@ -140,7 +153,9 @@ def main(argv=None) -> int:
             r = runs[-1]["per_frame"]
             print(f"{v['name']:24s} r{rep}: FPT {runs[-1]['fpt_s']:.3f} s, tracking {r['tracking_s'] * 1000:.0f} ms, "
                   f"ICP {r['icp_s'] * 1000:.0f} ms, mapping {r['mapping_s'] * 1000:.0f} ms, waiting "
-                  f"{r['wait_s'] * 1000:.0f} ms a frame; ATE {runs[-1]['ate_rmse_cm']:.2f} cm", flush=True)
+                  f"{r['wait_s'] * 1000:.0f} ms a frame, {runs[-1]['minor_faults_per_frame']:.0f} minor faults a frame "
+                  f"({runs[-1]['minor_faults_per_call']['mapping']:.0f} a mapping call); "
+                  f"ATE {runs[-1]['ate_rmse_cm']:.2f} cm", flush=True)
     st = stamp()
     text = table(runs, [v["name"] for v in variants])
     (args.out / "frame_breakdown.json").write_text(json.dumps({"stamp": st, "command": " ".join(sys.argv),

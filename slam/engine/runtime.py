@@ -20,6 +20,9 @@ log = logging.getLogger(__name__)
 # glibc mallopt parameter numbers (malloc.h)
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_MAX = -4
+# mallopt takes a C int: a Python int passed without a ctypes type is cut to its low 32 bits (1 << 40 became 0,
+# which means "trim on every free", the opposite of what keep_freed_memory asks for)
+_NEVER_TRIM = ctypes.c_int(2**31 - 1)
 _state = {"heap_kept": False}
 
 
@@ -41,7 +44,9 @@ def keep_freed_memory() -> bool:
     and their gradients are 41 MB each), and each first touch of the fresh pages faults: 17 ms per 41 MB tensor
     measured here, against 1 ms to fill a reused one. With mmap disabled and trimming off, freed blocks are
     reused instead. The cost: the process keeps its peak heap size until it exits (glibc still maps
-    allocations of other threads' arenas that do not fit a heap).
+    allocations of other threads' arenas that do not fit a heap). A warm ``tum/fr1_rpy-cpu-fast`` mapping call on
+    the mapper's thread faults no page in (about 16,000 while the threshold reached glibc as 0;
+    ``benchmarks/call_faults.py``).
 
     Returns:
         True when the setting was applied (now or earlier), False where it does not apply (not glibc).
@@ -52,7 +57,7 @@ def keep_freed_memory() -> bool:
         return False
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        ok = libc.mallopt(_M_MMAP_MAX, 0) == 1 and libc.mallopt(_M_TRIM_THRESHOLD, 1 << 40) == 1
+        ok = libc.mallopt(_M_MMAP_MAX, 0) == 1 and libc.mallopt(_M_TRIM_THRESHOLD, _NEVER_TRIM) == 1
     except (OSError, AttributeError) as exc:  # no libc to load, or no mallopt in it
         log.debug("keep_freed_memory: %s", exc)
         return False
