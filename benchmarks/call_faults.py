@@ -7,6 +7,15 @@ restored after every mapping call), then runs ``--calls`` mapping and then track
 after one untimed call each, and reports per call the wall time and the thread's minor page faults (``getrusage``
 ``RUSAGE_THREAD``): a warm call whose allocator reuses its freed memory faults almost never.
 
+``--beside`` also times every variant next to a neighbour process on the other core, started after the warm-up
+and stopped after the timed calls: ``memory`` streams two 256 MiB float32 arrays into each other (main-memory
+bandwidth, as the other worker of the loop or another tenant uses it), ``compute`` multiplies a 128 x 128 matrix
+that stays in its core's cache. A call that slows beside ``memory`` but not beside ``compute`` is bound by memory
+traffic, not by the core.
+
+    python benchmarks/call_faults.py --data ../shared/data/tum_fr1_rpy_0_124 --out benchmarks/results/call_beside \
+        --variant "now=.:" --beside none compute memory
+
     git worktree add /tmp/before e326085
     python benchmarks/call_faults.py --data ../shared/data/tum_fr1_rpy_0_124 --out benchmarks/results/call_faults \\
         --variant "e326085=/tmp/before:" --variant "now=.:"
@@ -36,6 +45,14 @@ import torch
 torch.set_num_threads(1)
 from profile_slam import warm_calls
 _, track, mapping = warm_calls({preset!r}, {overrides!r}, {warm!r})
+import subprocess
+NEIGHBOUR = {{"memory": "import numpy as np\na = np.ones(64 << 20, np.float32); b = np.empty_like(a)\n"
+                       "while True:\n    np.copyto(b, a); np.copyto(a, b)",
+             "compute": "import numpy as np\na = np.random.rand(128, 128).astype(np.float32)\n"
+                        "while True:\n    a = (a @ a) * 0.001 + 0.5"}}
+mapping(); track()
+hog = subprocess.Popen([sys.executable, "-c", NEIGHBOUR[{beside!r}]]) if {beside!r} != "none" else None
+time.sleep(1.0 if hog else 0.0)
 def timed(fn):
     f0 = resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
     t0 = time.perf_counter()
@@ -46,15 +63,19 @@ out = {{}}
 for name, fn in (("mapping", mapping), ("tracking", track)):
     pool.submit(timed, fn).result()
     out[name] = [pool.submit(timed, fn).result() for _ in range({calls!r})]
+if hog:
+    hog.kill()
+    hog.wait()
 json.dump(out, open({out!r}, "w"))
 """
 
 
-def run_variant(v: dict, args, path: Path) -> dict:
+def run_variant(v: dict, args, path: Path, beside: str) -> dict:
     overrides = [f"data.path={Path(args.data).resolve()}", *v["args"]]
     code = CHILD.format(checkout=v["checkout"], preset=args.preset, overrides=overrides, warm=args.warm,
-                        calls=args.calls, out=str(path))
-    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=v["checkout"])
+                        calls=args.calls, out=str(path), beside=beside)
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+               PYTHONPATH=v["checkout"])
     p = subprocess.run([sys.executable, "-c", code], cwd=v["checkout"], env=env, capture_output=True, text=True)
     if p.returncode != 0:
         raise SystemExit(f"call_faults: {v['name']} failed:\n{p.stderr[-3000:]}")
@@ -69,6 +90,8 @@ def main(argv=None) -> int:
     ap.add_argument("--warm", type=int, default=8, help="frames run before the timed calls")
     ap.add_argument("--calls", type=int, default=6, help="timed calls of each kind per run")
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--beside", nargs="+", choices=("none", "compute", "memory"), default=["none"],
+                    help="run every variant alone (none) and/or next to a neighbour process (see above)")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
     from _stamp import stamp
@@ -76,20 +99,23 @@ def main(argv=None) -> int:
     variants = [parse_variant(v) for v in args.variant]
     args.out.mkdir(parents=True, exist_ok=True)
     runs = []
+    names = [v["name"] if b == "none" else f"{v['name']}, beside {b}" for v in variants for b in args.beside]
     for rep in range(args.repeats):
         for v in variants:
-            calls = run_variant(v, args, args.out / "child.json")
-            runs.append({"variant": v["name"], "repeat": rep, "calls": calls})
-            print(f"{v['name']:16s} r{rep}: " + ", ".join(
-                f"{k} {statistics.median(c[0] for c in cs) * 1000:.0f} ms / {statistics.median(c[1] for c in cs):.0f}"
-                " faults" for k, cs in calls.items()), flush=True)
+            for b in args.beside:
+                name = v["name"] if b == "none" else f"{v['name']}, beside {b}"
+                calls = run_variant(v, args, args.out / "child.json", b)
+                runs.append({"variant": name, "beside": b, "repeat": rep, "calls": calls})
+                print(f"{name:24s} r{rep}: " + ", ".join(
+                    f"{k} {statistics.median(c[0] for c in cs) * 1000:.0f} ms / "
+                    f"{statistics.median(c[1] for c in cs):.0f} faults" for k, cs in calls.items()), flush=True)
     (args.out / "child.json").unlink(missing_ok=True)
     lines = ["| variant | mapping call | its minor faults | tracking call | its minor faults |",
              "|---|---|---|---|---|"]
-    for v in variants:
-        cs = {k: [c for r in runs if r["variant"] == v["name"] for c in r["calls"][k]] for k in ("mapping", "tracking")}
+    for name in names:
+        cs = {k: [c for r in runs if r["variant"] == name for c in r["calls"][k]] for k in ("mapping", "tracking")}
         med = {k: (statistics.median(c[0] for c in cs[k]), statistics.median(c[1] for c in cs[k])) for k in cs}
-        lines.append(f"| {v['name']} | {med['mapping'][0] * 1000:.0f} ms | {med['mapping'][1]:.0f} | "
+        lines.append(f"| {name} | {med['mapping'][0] * 1000:.0f} ms | {med['mapping'][1]:.0f} | "
                      f"{med['tracking'][0] * 1000:.0f} ms | {med['tracking'][1]:.0f} |")
     text = "\n".join(lines)
     (args.out / "call_faults.json").write_text(json.dumps(
