@@ -87,12 +87,33 @@ def _level_points(depth: torch.Tensor, cam: tuple[float, float, float, float],
 
 
 def _associate(pts: torch.Tensor, pnrm: torch.Tensor, T: torch.Tensor, prev: tuple, cam: tuple, dmax: float,
-               min_cos: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Projective data association: the current frame's points ``pts`` / normals ``pnrm`` ``[P, 3]``, moved by
-    ``T``, matched with the previous level's ``prev = (points, normals, valid)`` at the pixel they project to.
+               min_cos: float, kernel: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Projective data association: the current frame's points ``pts`` / normals ``pnrm`` ``[P, 3]`` (float64,
+    CPU), moved by ``T``, matched with the previous level's ``prev = (points, normals, valid)`` at the pixel they
+    project to. ``kernel``: one numba pass (:mod:`slam.core.odometry_kernels`, the same matches bit for bit);
+    False: the tensor-op reference.
 
     Returns ``(idx, tgt, nrm, src)``: indices into ``pts`` of the kept matches, their target points and normals,
     and the moved points (previous camera frame)."""
+    if not kernel:
+        return _associate_reference(pts, pnrm, T, prev, cam, dmax, min_cos)
+    from slam.core.odometry_kernels import associate  # numba compiles (or loads from its cache) on first use only
+
+    vp, np_, okp = prev
+    q = pts @ T[:3, :3].T + T[:3, 3]  # as the reference: the moved points and normals by the same matmuls
+    qn = pnrm @ T[:3, :3].T
+    P = q.shape[0]
+    idx, src, tgt, nrm = (torch.empty(P, dtype=torch.int64), torch.empty(P, 3, dtype=q.dtype),
+                          torch.empty(P, 3, dtype=q.dtype), torch.empty(P, 3, dtype=q.dtype))
+    m = associate(q.numpy(), qn.contiguous().numpy(), vp.contiguous().numpy(), np_.contiguous().numpy(),
+                  okp.contiguous().numpy(), *(float(c) for c in cam), float(dmax), float(min_cos), idx.numpy(),
+                  src.numpy(), tgt.numpy(), nrm.numpy())
+    return idx[:m], tgt[:m], nrm[:m], src[:m]
+
+
+def _associate_reference(pts: torch.Tensor, pnrm: torch.Tensor, T: torch.Tensor, prev: tuple, cam: tuple,
+                         dmax: float, min_cos: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_associate` as tensor ops (the reference the kernel is tested against)."""
     vp, np_, okp = prev
     lfx, lfy, lcx, lcy = cam
     H, W = okp.shape
@@ -119,8 +140,9 @@ def _gauss_newton_step(src: torch.Tensor, tgt: torch.Tensor, nrm: torch.Tensor) 
     J = torch.cat((torch.linalg.cross(src, nrm, dim=-1), nrm), -1)  # d r / d (w, t), left twist
     scale = 1.4826 * r.abs().median().clamp(min=1e-4)
     w = 1.0 / torch.clamp(r.abs() / (1.345 * scale), min=1.0)  # Huber weights
-    A = (J * w[:, None]).T @ J
-    b = -(J * w[:, None]).T @ r
+    Jw = (J * w[:, None]).T
+    A = Jw @ J
+    b = -Jw @ r
     xi = torch.linalg.solve(A + 1e-6 * torch.eye(6, dtype=A.dtype), b)
     return xi, r
 
@@ -137,6 +159,7 @@ def icp_relative_pose(
     min_cos: float = 0.8,
     min_inliers: float = 0.3,
     max_jump: float = 0.1,
+    kernel: bool = True,
 ) -> ICPResult:
     """Estimate the relative pose of ``depth_cur``'s camera in ``depth_prev``'s camera frame.
 
@@ -150,6 +173,7 @@ def icp_relative_pose(
         min_cos: smallest cosine between corresponding normals.
         min_inliers: share of the current frame's valid points that must find a correspondence (finest level).
         max_jump: relative depth jump between neighbours beyond which no normal is computed (depth edges).
+        kernel: associate points by one numba pass (the same result bit for bit); False: by tensor ops.
 
     Returns:
         :class:`ICPResult`.
@@ -171,7 +195,7 @@ def icp_relative_pose(
         if pts.shape[0] < 50 or int(okp.sum()) < 50:
             return ICPResult(T.float(), 0.0, float("inf"), False)
         for _ in range(n_it):
-            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos)
+            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos, kernel)
             if idx.numel() < 50:
                 return ICPResult(T.float(), idx.numel() / max(pts.shape[0], 1), float("inf"), False)
             xi, r = _gauss_newton_step(src, tgt, nrm)
