@@ -2,7 +2,7 @@
 
 The reference (``slam.core.odometry._associate_reference``) is some twenty tensor ops over the current frame's
 points, each a dispatch and a pass over memory, run at every Gauss-Newton step of both pyramid levels: 0.9 ms a
-step of a 32 ms registration at 184 x 248 (docs/benchmarks.md, "Depth ICP's association as one kernel"). Here one
+step of a 33-46 ms registration at 184 x 248 (docs/benchmarks.md, "Depth ICP's association as one kernel"). Here one
 pass visits each point once. The arithmetic repeats the reference's in float64 and in its order (projection,
 rounding half to even, the same comparisons), and the matches come out in the reference's order, so a
 registration gives the same pose bit for bit; the moved points and normals are computed by the caller, with
