@@ -13,7 +13,7 @@ bandwidth, as the other worker of the loop or another tenant uses it), ``compute
 that stays in its core's cache. A call that slows beside ``memory`` but not beside ``compute`` is bound by memory
 traffic, not by the core.
 
-    python benchmarks/call_faults.py --data ../shared/data/tum_fr1_rpy_0_124 --out benchmarks/results/call_beside \
+    python benchmarks/call_faults.py --data ../shared/data/tum_fr1_rpy_0_124 --out benchmarks/results/call_beside \\
         --variant "now=.:" --beside none compute memory
 
     git worktree add /tmp/before e326085
@@ -50,7 +50,6 @@ NEIGHBOUR = {{"memory": "import numpy as np\na = np.ones(64 << 20, np.float32); 
                        "while True:\n    np.copyto(b, a); np.copyto(a, b)",
              "compute": "import numpy as np\na = np.random.rand(128, 128).astype(np.float32)\n"
                         "while True:\n    a = (a @ a) * 0.001 + 0.5"}}
-mapping(); track()
 hog = subprocess.Popen([sys.executable, "-c", NEIGHBOUR[{beside!r}]]) if {beside!r} != "none" else None
 time.sleep(1.0 if hog else 0.0)
 def timed(fn):
@@ -68,6 +67,11 @@ if hog:
     hog.wait()
 json.dump(out, open({out!r}, "w"))
 """
+
+
+def label(v: dict, beside: str) -> str:
+    """A variant's name in the outputs: its own, or with the neighbour it ran beside."""
+    return v["name"] if beside == "none" else f"{v['name']}, beside {beside}"
 
 
 def run_variant(v: dict, args, path: Path, beside: str) -> dict:
@@ -99,11 +103,10 @@ def main(argv=None) -> int:
     variants = [parse_variant(v) for v in args.variant]
     args.out.mkdir(parents=True, exist_ok=True)
     runs = []
-    names = [v["name"] if b == "none" else f"{v['name']}, beside {b}" for v in variants for b in args.beside]
     for rep in range(args.repeats):
         for v in variants:
             for b in args.beside:
-                name = v["name"] if b == "none" else f"{v['name']}, beside {b}"
+                name = label(v, b)
                 calls = run_variant(v, args, args.out / "child.json", b)
                 runs.append({"variant": name, "beside": b, "repeat": rep, "calls": calls})
                 print(f"{name:24s} r{rep}: " + ", ".join(
@@ -112,7 +115,7 @@ def main(argv=None) -> int:
     (args.out / "child.json").unlink(missing_ok=True)
     lines = ["| variant | mapping call | its minor faults | tracking call | its minor faults |",
              "|---|---|---|---|---|"]
-    for name in names:
+    for name in (label(v, b) for v in variants for b in args.beside):
         cs = {k: [c for r in runs if r["variant"] == name for c in r["calls"][k]] for k in ("mapping", "tracking")}
         med = {k: (statistics.median(c[0] for c in cs[k]), statistics.median(c[1] for c in cs[k])) for k in cs}
         lines.append(f"| {name} | {med['mapping'][0] * 1000:.0f} ms | {med['mapping'][1]:.0f} | "

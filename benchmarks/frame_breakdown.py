@@ -57,7 +57,7 @@ for m in pkgutil.walk_packages(slam.__path__, "slam."):
     except Exception:
         pass
 import resource
-totals = {{n: [0.0, 0, 0, []] for n in {timed!r}}}
+calls = {{n: [] for n in {timed!r}}}  # (seconds, the thread's minor faults) per call
 lock = threading.Lock()
 originals = {{}}
 for mod in list(sys.modules.values()):
@@ -71,11 +71,9 @@ def wrap(n, f):
         try:
             return f(*a, **k)
         finally:
+            dt, df = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - f0
             with lock:
-                totals[n][0] += time.perf_counter() - t0
-                totals[n][1] += 1
-                totals[n][3].append(time.perf_counter() - t0)
-                totals[n][2] += resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - f0
+                calls[n].append((dt, df))
     return timed
 wrapped = {{i: wrap(n, f) for i, (n, f) in originals.items()}}
 for mod in list(sys.modules.values()):
@@ -85,7 +83,8 @@ for mod in list(sys.modules.values()):
             setattr(mod, n, wrapped[id(f)])
 rc = slam.cli.main({argv!r})
 faults = sum(resource.getrusage(w).ru_minflt for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
-res = {{n: {{"s": v[0], "calls": v[1], "minor_faults": v[2], "each_s": v[3]}} for n, v in totals.items()}}
+res = {{n: {{"s": sum(c[0] for c in v), "calls": len(v), "minor_faults": sum(c[1] for c in v),
+             "each_s": [c[0] for c in v]}} for n, v in calls.items()}}
 res["minor_faults"] = faults
 json.dump(res, open({out!r}, "w"))
 sys.exit(rc)
@@ -110,6 +109,7 @@ def run_variant(v: dict, out: Path, repeat: int) -> dict:
     icp, track, mapping = t["icp_relative_pose"], t["track_frame"], t["map_frame"]
     if not mapping["calls"] and m.get("mapping_calls"):  # the mapper ran in its own process: its own count
         mapping = {"s": m["mapping_s"], "calls": m["mapping_calls"]}
+    kinds = {"icp": icp, "tracking": track, "mapping": mapping}
     return {"variant": v["name"], "repeat": repeat, "frames": n, "wall_s": wall, "ate_rmse_cm": 100 * m["ate_rmse_m"],
             "fpt_s": m["fpt_s"], "loop_s": m.get("loop_s"), "per_frame": {
                 "icp_s": icp["s"] / n, "tracking_s": track["s"] / n, "mapping_s": mapping["s"] / n,
@@ -119,10 +119,9 @@ def run_variant(v: dict, out: Path, repeat: int) -> dict:
             "per_call_s": {"icp": icp["s"] / max(icp["calls"], 1), "tracking": track["s"] / max(track["calls"], 1),
                            "mapping": mapping["s"] / max(mapping["calls"], 1)},
             "median_call_after_first_s": {k: statistics.median(c["each_s"][1:]) if len(c.get("each_s", [])) > 1
-                                          else float("nan")
-                                          for k, c in (("icp", icp), ("tracking", track), ("mapping", mapping))},
+                                          else float("nan") for k, c in kinds.items()},
             "minor_faults_per_call": {k: c.get("minor_faults", float("nan")) / max(c["calls"], 1)
-                                      for k, c in (("icp", icp), ("tracking", track), ("mapping", mapping))}}
+                                      for k, c in kinds.items()}}
 
 
 def table(runs: list[dict], names: list[str]) -> str:

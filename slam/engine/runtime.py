@@ -26,6 +26,11 @@ _NEVER_TRIM = ctypes.c_int(2**31 - 1)
 _state = {"heap_kept": False}
 
 
+def _glibc() -> bool:
+    """Whether this process runs on Linux with glibc, the only C library whose heap these settings reach."""
+    return platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
+
+
 def set_threads(n: int) -> None:
     """Use ``n`` CPU threads for torch and tdfields' fused kernels, which follow torch's count (0: defaults).
 
@@ -53,7 +58,7 @@ def keep_freed_memory() -> bool:
     """
     if _state["heap_kept"]:
         return True
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+    if not _glibc():
         return False
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
@@ -77,7 +82,7 @@ def release_freed_memory() -> bool:
     Returns:
         True when the trim ran, False where it does not apply (not glibc).
     """
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+    if not _glibc():
         return False
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")

@@ -7,10 +7,12 @@ import torch
 
 from slam.engine import runtime
 
+GLIBC = platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
+
 
 def test_keep_freed_memory_applies_on_glibc_only(monkeypatch):
     monkeypatch.setitem(runtime._state, "heap_kept", False)
-    if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+    if GLIBC:
         assert runtime.keep_freed_memory() is True
         assert runtime.keep_freed_memory() is True  # idempotent
         big = torch.ones(12_000_000)  # 48 MB: above glibc's largest mmap threshold, now served by the heap
@@ -20,7 +22,6 @@ def test_keep_freed_memory_applies_on_glibc_only(monkeypatch):
     assert runtime.keep_freed_memory() is False
 
 
-GLIBC = platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
 # a fresh process (the setting is process-wide) mallocs, fills and frees a 40 MiB block 10 times and prints the
 # share of its pages that faulted in again per round: 1.0 means every round paid for fresh pages
 _REFAULTS = r"""
@@ -75,8 +76,7 @@ def test_release_freed_memory_runs_on_glibc_only_and_leaves_live_tensors_intact(
     live = [torch.full((1000,), float(i)) for i in range(100)]
     gone = [torch.ones(1_000_000) for _ in range(20)]
     del gone
-    on_glibc = platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
-    assert runtime.release_freed_memory() is on_glibc
+    assert runtime.release_freed_memory() is GLIBC
     assert all(float(t.sum()) == 1000.0 * i for i, t in enumerate(live))
     monkeypatch.setattr(platform, "system", lambda: "Darwin")
     assert runtime.release_freed_memory() is False
