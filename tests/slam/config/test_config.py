@@ -20,8 +20,9 @@ def test_the_fast_preset_is_the_cpu_preset_with_the_measured_levers():
 
     fast, cpu = asdict(load_config("tum/fr1_rpy-cpu-fast")), asdict(load_config("tum/fr1_rpy-cpu"))
     levers = {("tracking", "optimizer"): "gauss_newton", ("tracking", "gn_prior"): 0.03,
-              ("tracking", "gn_hessian"): "first", ("mapping", "schedule"): "by_need",
-              ("mapping", "optimizer_state"): "persistent", ("rendering", "fused"): True}
+              ("tracking", "gn_hessian"): "first", ("tracking", "gn_iters"): 6, ("mapping", "schedule"): "by_need",
+              ("mapping", "optimizer_state"): "persistent", ("rendering", "fused"): True,
+              ("rendering", "n_stratified"): 8}
     for (group, key), value in levers.items():
         assert fast[group][key] == value and cpu[group][key] != value, (group, key)
         fast[group][key] = cpu[group][key]
