@@ -220,7 +220,9 @@ def compose_source(rank: int, channels: int, dtype: str = "float32", checked: bo
     ``a0 <= a < a1``. A BLAS batched matmul produces channel-major planes and spends as long again permuting
     them to the channels-last layout the lookup kernel reads; here every (a, b) cell is one k-step FMA chain over a
     C-vector written in place. Backward: ``dU[a] = sum_b dP[a, b] * V[b]`` and ``dV[b] += sum_a dP[a, b] * U[a]``
-    (``dV`` accumulated: one buffer per thread).
+    (``dV`` accumulated: one buffer per thread), skipping the cells whose gradient is zero in every channel: a
+    query reads only the cells around its points (a mapping batch a fifth to a third of a sub-plane's cells), and a
+    zero adds nothing to a finite sum, so the result is the same bit for bit at half the time or less.
     """
     k, C = rank, channels
     return "\n".join([
@@ -247,6 +249,13 @@ def compose_source(rank: int, channels: int, dtype: str = "float32", checked: bo
         "                GU[a, j] = ZERO",
         "        for b in range(nb):",
         "            row = a * nb + b",
+        "            live = False",
+        f"            for c in range({C}):",
+        "                if GP[row, c] != ZERO:",
+        "                    live = True",
+        "                    break",
+        "            if not live:",
+        "                continue",
         f"            for c in range({C}):",
         "                g = GP[row, c]",
         f"                for r in range({k}):",

@@ -194,6 +194,23 @@ def test_fused_composition_matches_einsum(want):
         torch.testing.assert_close(b, a)
 
 
+def test_fused_composition_backward_with_mostly_zero_cells():
+    """A query reads a fraction of a sub-plane's cells, so most of the plane's gradient is zero and the backward
+    skips those cells; a cell with a gradient in any one channel (here only the last) must still count."""
+    torch.manual_seed(1)
+    u = torch.randn(13, 4 * 8, dtype=torch.float64, requires_grad=True)
+    v = torch.randn(9, 4 * 8, dtype=torch.float64, requires_grad=True)
+    g = torch.randn(13, 9, 8, dtype=torch.float64)
+    cells = torch.rand(13, 9)
+    g[cells > 0.3] = 0.0
+    g[cells > 0.9, -1] = 1.5  # cells live in their last channel only
+    ref = torch.einsum("akc,bkc->abc", u.view(13, 4, 8), v.view(9, 4, 8))
+    with kernels.use_backend("numba"):
+        fused = compose_plane(u, v, 4)
+    for a, b in zip(torch.autograd.grad(ref, (u, v), g), torch.autograd.grad(fused, (u, v), g)):
+        torch.testing.assert_close(b, a)
+
+
 def test_empty_batches():
     f = tdfields.MultiResolution([tdfields.CP([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2),
                                   tdfields.SixAxis([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2)])
