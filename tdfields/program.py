@@ -101,7 +101,8 @@ class Plan:
 
     Produced by :func:`tdfields.plan` (a field at world points) and :meth:`tdfields.Field.plan_at` (at grid
     coordinates); the tensors may be the factors themselves or equivalent ones a kind derived from them (Six-axis
-    planes composed over the region the points touch), with the coordinates shifted to match.
+    planes composed over the region the points touch, on the CPU kernels only at the cells the plan's coordinates
+    read), with the coordinates shifted to match. So a plan's tensors are valid at its own coordinates only.
 
     Attributes:
         program: the query structure.

@@ -29,8 +29,8 @@ def test_subplanes_match_the_factor_path(monkeypatch, backend, region):
         x = torch.rand(800, 3, dtype=torch.float64) * torch.tensor([2.0, 1.0, 1.5])
     shapes = []
     compose = six_axis_module.compose_plane
-    monkeypatch.setattr(six_axis_module, "compose_plane", lambda u, v, k: shapes.append((u.shape[0], v.shape[0]))
-                        or compose(u, v, k))
+    monkeypatch.setattr(six_axis_module, "compose_plane", lambda u, v, k, read_at=None: shapes.append(
+        (u.shape[0], v.shape[0])) or compose(u, v, k, read_at=read_at))
     results = []
     for strategy in ("planes", "factors"):
         f = _field(strategy)
@@ -47,6 +47,30 @@ def test_subplanes_match_the_factor_path(monkeypatch, backend, region):
         assert set(shapes) == full
     else:
         assert len(shapes) == 3 and all(a * b < 0.3 * 21 * 16 for a, b in shapes)  # a small part of each plane
+
+
+def test_the_kernel_composes_only_the_cells_the_points_read(monkeypatch):
+    """On the numba path a sub-plane is composed only where the plan's points interpolate (the rest 0), and the
+    query is the same bit for bit as with every cell of the region composed; points on cell borders and on the
+    region's upper edge included."""
+    torch.manual_seed(2)
+    x = torch.rand(40, 3, dtype=torch.float64) * torch.tensor([1.2, 0.6, 0.9]) + 0.1
+    x[:10] = torch.round(x[:10] * 10) / 10  # on grid lines: the lower index is the point's own
+    f = _field("planes")
+    with kernels.use_backend("numba"):
+        planes = tdfields.plan(f, x).tensors
+        sparse = [float((p == 0).all(-1).double().mean()) for p in planes]
+        y = f(x.clone().requires_grad_())
+        grads = torch.autograd.grad(y.square().sum(), list(f.parameters()))
+        compose = six_axis_module.compose_plane
+        monkeypatch.setattr(six_axis_module, "compose_plane", lambda u, v, k, read_at=None: compose(u, v, k))
+        assert all(not (p == 0).all(-1).any() for p in tdfields.plan(f, x).tensors)
+        y_full = f(x.clone().requires_grad_())
+        grads_full = torch.autograd.grad(y_full.square().sum(), list(f.parameters()))
+    assert min(sparse) > 0.1  # 40 points leave cells of their bounding box unread, and those stay 0
+    assert torch.equal(y, y_full)
+    for a, b in zip(grads, grads_full):
+        assert torch.equal(a, b)
 
 
 def test_frozen_queries_still_use_the_cached_full_planes():

@@ -127,16 +127,32 @@ def fused_evaluate(program: Program, factors, coords: torch.Tensor) -> torch.Ten
     return NumbaProgram.apply(program, coords, *factors)
 
 
+def _live_cells(read_at: torch.Tensor | None, n_a: int, n_b: int) -> np.ndarray | None:
+    """``[n_a * n_b]`` uint8 flags of the cells interpolation at ``read_at [N, 2]`` reads, or None for all of
+    them (no ``read_at``, or a non-finite coordinate in it)."""
+    if read_at is None:
+        return None
+    from tdfields.kernels.numba.cells import read_cells
+
+    live = np.zeros(n_a * n_b, np.uint8)
+    return live if read_cells(_host(read_at).numpy(), n_a, n_b, live) else None
+
+
 class NumbaCompose(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, u, v, rank):
+    def forward(ctx, u, v, rank, read_at=None):
         uc, vc = u.detach().contiguous(), v.detach().contiguous()
         channels = uc.shape[1] // rank
         plane = torch.empty(uc.shape[0], vc.shape[0], channels, dtype=uc.dtype)
         mod = compose_kernels(rank, channels, _dtype_name(uc.dtype))
         flat = plane.view(-1, channels).numpy()
-        run([lambda a=a, b=b: mod.compose_forward(uc.numpy(), vc.numpy(), flat, a, b)
-             for a, b in split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))])
+        live = _live_cells(read_at, uc.shape[0], vc.shape[0])
+        ranges = split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))
+        if live is None:
+            run([lambda a=a, b=b: mod.compose_forward(uc.numpy(), vc.numpy(), flat, a, b) for a, b in ranges])
+        else:
+            run([lambda a=a, b=b: mod.compose_forward_cells(uc.numpy(), vc.numpy(), flat, live, a, b)
+                 for a, b in ranges])
         ctx.save_for_backward(uc, vc)
         ctx.rank = rank
         return plane
@@ -156,15 +172,19 @@ class NumbaCompose(torch.autograd.Function):
                                                               want_u, want_v, a, b)
                  for (a, b), gv in zip(ranges, gvs)])
             gv = sum(gvs[1:], gvs[0]) if want_v else None
-        return guard_second_order(gu if want_u else None), guard_second_order(gv), None
+        return guard_second_order(gu if want_u else None), guard_second_order(gv), None, None
 
 
-def fused_compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int) -> torch.Tensor:
+def fused_compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int,
+                        read_at: torch.Tensor | None = None) -> torch.Tensor:
     """Fused equivalent of :func:`tdfields.program.compose_plane_reference` (CPU, first derivatives only): the
-    rank-k plane ``[n_a, n_b, C]`` of two line factors ``u [n_a, k*C]``, ``v [n_b, k*C]``.
-    :func:`tdfields.ops.compose_plane` picks it or the reference per call."""
+    rank-k plane ``[n_a, n_b, C]`` of two line factors ``u [n_a, k*C]``, ``v [n_b, k*C]``; with ``read_at``
+    (``[N, 2]`` continuous indices into the plane, no gradient) only the cells interpolation there reads, the
+    others 0. :func:`tdfields.ops.compose_plane` picks it or the reference per call."""
     _require_numba()
-    return NumbaCompose.apply(u, v, rank)
+    if read_at is not None and (read_at.dim() != 2 or read_at.shape[1] != 2):
+        raise ValueError(f"read_at must be [N, 2] plane coordinates, got {tuple(read_at.shape)}")
+    return NumbaCompose.apply(u, v, rank, None if read_at is None else read_at.detach())
 
 
 class NumbaGridCoords(torch.autograd.Function):

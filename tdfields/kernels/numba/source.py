@@ -217,12 +217,14 @@ def compose_source(rank: int, channels: int, dtype: str = "float32", checked: bo
     """Source of ``compose_forward`` / ``compose_backward``: a rank-k plane from two line factors, channels-last.
 
     ``P[a, b, c] = sum_r U[a, r, c] V[b, r, c]`` for ``U [n_a, k*C]``, ``V [n_b, k*C]``, ``P [n_a * n_b, C]``, rows
-    ``a0 <= a < a1``. A BLAS batched matmul produces channel-major planes and spends as long again permuting
-    them to the channels-last layout the lookup kernel reads; here every (a, b) cell is one k-step FMA chain over a
-    C-vector written in place. Backward: ``dU[a] = sum_b dP[a, b] * V[b]`` and ``dV[b] += sum_a dP[a, b] * U[a]``
-    (``dV`` accumulated: one buffer per thread), skipping the cells whose gradient is zero in every channel: a
-    query reads only the cells around its points (a mapping batch a fifth to a third of a sub-plane's cells), and a
-    zero adds nothing to a finite sum, so the result is the same bit for bit at half the time or less.
+    ``a0 <= a < a1``; ``compose_forward_cells`` only the cells whose ``live`` flag (``[n_a * n_b]`` uint8) is set,
+    the same arithmetic, the others 0. A BLAS batched matmul produces channel-major planes and spends as long again
+    permuting them to the channels-last layout the lookup kernel reads; here every (a, b) cell is one k-step FMA
+    chain over a C-vector written in place. Backward: ``dU[a] = sum_b dP[a, b] * V[b]`` and
+    ``dV[b] += sum_a dP[a, b] * U[a]`` (``dV`` accumulated: one buffer per thread), skipping the cells whose
+    gradient is zero in every channel: a query reads only the cells around its points (a mapping batch a fifth to a
+    third of a sub-plane's cells), and a zero adds nothing to a finite sum, so the result is the same bit for bit
+    at half the time or less.
     """
     k, C = rank, channels
     return "\n".join([
@@ -233,6 +235,23 @@ def compose_source(rank: int, channels: int, dtype: str = "float32", checked: bo
         "    for a in range(a0, a1):",
         "        for b in range(nb):",
         "            row = a * nb + b",
+        f"            for c in range({C}):",
+        "                s = U[a, c] * V[b, c]",
+        f"                for r in range(1, {k}):",
+        f"                    s += U[a, r * {C} + c] * V[b, r * {C} + c]",
+        "                P[row, c] = s",
+        "",
+        "",
+        _decorator(checked),
+        "def compose_forward_cells(U, V, P, live, a0, a1):",
+        "    nb = V.shape[0]",
+        "    for a in range(a0, a1):",
+        "        for b in range(nb):",
+        "            row = a * nb + b",
+        "            if live[row] == 0:",
+        f"                for c in range({C}):",
+        "                    P[row, c] = ZERO",
+        "                continue",
         f"            for c in range({C}):",
         "                s = U[a, c] * V[b, c]",
         f"                for r in range(1, {k}):",

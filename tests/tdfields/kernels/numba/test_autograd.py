@@ -228,7 +228,8 @@ def test_composition_above_the_fused_rank_limit_takes_the_reference(monkeypatch)
 
     calls = []
     real = ops.kernels.fused_compose_plane
-    monkeypatch.setattr(ops.kernels, "fused_compose_plane", lambda u, v, k: calls.append(k) or real(u, v, k))
+    monkeypatch.setattr(ops.kernels, "fused_compose_plane",
+                        lambda u, v, k, read_at=None: calls.append(k) or real(u, v, k, read_at))
     for rank in (ops.FUSED_COMPOSE_MAX_RANK, ops.FUSED_COMPOSE_MAX_RANK + 1):
         u, v = torch.randn(5, rank * 2), torch.randn(6, rank * 2)
         with kernels.use_backend("numba"):
