@@ -24,7 +24,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("tdfields.kernels: shared emitters", ("tdfields.kernels.emitters",)),
     ("tdfields.kernels: per-backend source, numba runtime",
      ("tdfields.kernels.numba", "tdfields.kernels.numba.source", "tdfields.kernels.numba.coords",
-      "tdfields.kernels.triton", "tdfields.kernels.triton.source")),
+      "tdfields.kernels.numba.cells", "tdfields.kernels.triton", "tdfields.kernels.triton.source")),
     ("tdfields.kernels: compile and cache", ("tdfields.kernels.cache",)),
     ("tdfields.kernels: dispatch (backend choice), threads, first-order guard",
      ("tdfields.kernels.dispatch", "tdfields.kernels.threads", "tdfields.kernels.second_order")),

@@ -10,7 +10,8 @@ This module is the package's face; the parts live by backend and role:
   ``TDFIELDS_BACKEND``: ``"auto"``, ``"torch"``, ``"numba"``, ``"triton"``), which libraries import, and
   :func:`use_fused` (numba) / :func:`use_triton`, the per-call decision :mod:`tdfields.ops` asks for.
 * :mod:`~tdfields.kernels.numba`: the CPU backend. ``numba.source`` writes a kernel per program, ``numba.coords``
-  holds the world-to-grid kernels, ``numba.autograd`` the autograd Functions and entry points
+  holds the world-to-grid kernels, ``numba.cells`` marks the plane cells a query reads, ``numba.autograd`` the
+  autograd Functions and entry points
   (:func:`fused_evaluate`, :func:`fused_compose_plane`, :func:`fused_grid_coords`, :func:`fused_interpolate`).
 * :mod:`~tdfields.kernels.triton`: the GPU backend. ``triton.source`` writes a kernel per program,
   ``triton.autograd`` holds its autograd Function and entry point (:func:`triton_evaluate`).
