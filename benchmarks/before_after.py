@@ -44,6 +44,17 @@ def parse_variant(text: str) -> dict:
     return {"name": name, "checkout": str(path), "args": absolute_paths(shlex.split(args))}
 
 
+def save_variant_runs(out: Path, stem: str, variants: list[dict], runs: list[dict], table: str, **extra) -> None:
+    """Write ``out/{stem}.json`` (stamp, command line, ``extra``, the variants and every run) and ``out/{stem}.md``
+    (``table``), and print the table: the outputs of frame_breakdown.py and call_faults.py."""
+    from _stamp import stamp
+
+    record = {"stamp": stamp(), "command": " ".join(sys.argv), **extra, "variants": variants, "runs": runs}
+    (out / f"{stem}.json").write_text(json.dumps(record, indent=1) + "\n")
+    (out / f"{stem}.md").write_text(table + "\n")
+    print(table)
+
+
 # options whose value is a path: a run starts in its own checkout, so a relative one is made absolute here, where
 # it was written (`--data ../shared/...` from the main checkout means the same folder for a worktree in /tmp)
 PATH_OPTIONS = ("--data", "--config", "--resume")

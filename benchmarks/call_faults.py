@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from before_after import parse_variant  # noqa: E402
+from before_after import parse_variant, save_variant_runs  # noqa: E402
 
 CHILD = r"""
 import concurrent.futures, json, resource, sys, time
@@ -98,8 +98,6 @@ def main(argv=None) -> int:
                     help="run every variant alone (none) and/or next to a neighbour process (see above)")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    from _stamp import stamp
-
     variants = [parse_variant(v) for v in args.variant]
     args.out.mkdir(parents=True, exist_ok=True)
     runs = []
@@ -120,12 +118,7 @@ def main(argv=None) -> int:
         med = {k: (statistics.median(c[0] for c in cs[k]), statistics.median(c[1] for c in cs[k])) for k in cs}
         lines.append(f"| {name} | {med['mapping'][0] * 1000:.0f} ms | {med['mapping'][1]:.0f} | "
                      f"{med['tracking'][0] * 1000:.0f} ms | {med['tracking'][1]:.0f} |")
-    text = "\n".join(lines)
-    (args.out / "call_faults.json").write_text(json.dumps(
-        {"stamp": stamp(), "command": " ".join(sys.argv), "preset": args.preset, "variants": variants, "runs": runs},
-        indent=1) + "\n")
-    (args.out / "call_faults.md").write_text(text + "\n")
-    print(text)
+    save_variant_runs(args.out, "call_faults", variants, runs, "\n".join(lines), preset=args.preset)
     return 0
 
 

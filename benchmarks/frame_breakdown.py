@@ -40,7 +40,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from before_after import parse_variant  # noqa: E402
+from before_after import parse_variant, save_variant_runs  # noqa: E402
 
 TIMED = ("icp_relative_pose", "track_frame", "map_frame")
 
@@ -148,8 +148,6 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    from _stamp import stamp
-
     variants = [parse_variant(v) for v in args.variant]
     args.out.mkdir(parents=True, exist_ok=True)
     runs = []
@@ -163,12 +161,7 @@ def main(argv=None) -> int:
                   f"({runs[-1]['minor_faults_per_call']['mapping']:.0f} a mapping call), median mapping call "
                   f"after the first {runs[-1]['median_call_after_first_s']['mapping'] * 1000:.0f} ms; "
                   f"ATE {runs[-1]['ate_rmse_cm']:.2f} cm", flush=True)
-    st = stamp()
-    text = table(runs, [v["name"] for v in variants])
-    (args.out / "frame_breakdown.json").write_text(json.dumps({"stamp": st, "command": " ".join(sys.argv),
-                                                              "variants": variants, "runs": runs}, indent=1) + "\n")
-    (args.out / "frame_breakdown.md").write_text(text + "\n")
-    print(text)
+    save_variant_runs(args.out, "frame_breakdown", variants, runs, table(runs, [v["name"] for v in variants]))
     return 0
 
 
