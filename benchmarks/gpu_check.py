@@ -1,25 +1,26 @@
 """The prepared GPU check: one run on one CUDA device, under 8 minutes, one JSON + markdown stamped with the device.
 
-Steps (each with its own time limit, so one slow step cannot eat the others' time):
+Steps, in this order (each with its own time limit, and all under ``--budget-s``, so one slow step cannot eat the
+others' time and a lease that ends early still returns what finished; the summary is rewritten after every step):
 
-1. ``cuda-tests``: the Triton kernel's tests compiled for the GPU (``TRITON_INTERPRET=0``), and a short SLAM run
-   with ``--device cuda`` in both loop modes (sequential, parallel), with the mapper in its own process, and with
-   the levers of ``tum/fr1_rpy-cpu-fast`` (carried Adam moments on the device among them).
-2. ``field-speed``: the field-speed suite's CUDA cases (reference, Triton, ESLAM's grid_sample) with
-   pytest-benchmark, JSON kept.
-3. ``slam``: lrslam vs eslam on the TUM excerpt at the paper's TUM settings (``tum/fr1_rpy``), first
-   ``--frames`` frames, through ``benchmarks/slam_compare.py``.
-4. ``gn-tracker-every`` / ``-first``: the second-order tracker against Adam on the device
+1. ``slam-*``: a short SLAM run with ``--device cuda`` in both loop modes (sequential, parallel), with the mapper in
+   its own process, and with the levers of ``tum/fr1_rpy-cpu-fast`` (carried Adam moments on the device among them).
+2. ``cuda-tests``: the Triton kernel's tests compiled for the GPU (``TRITON_INTERPRET=0``).
+3. ``gn-tracker-every`` / ``-first``: the second-order tracker against Adam on the device
    (``benchmarks/gn_convergence.py --device``: time per evaluation / iteration, evaluations to 1 mm and 0.1 degree
    from known offsets on the synthetic room), with the normal equations' matrix at every evaluation and at a round's
    first only (``tracking.gn_hessian``).
+4. ``field-speed``: the field-speed suite's CUDA cases (reference, Triton, ESLAM's grid_sample) with
+   pytest-benchmark, JSON kept.
+5. ``slam``: lrslam vs eslam on the TUM excerpt at the paper's TUM settings (``tum/fr1_rpy``), first
+   ``--frames`` frames, through ``benchmarks/slam_compare.py``.
 
 ``--smoke`` runs the same steps end to end on the CPU at toy sizes (the bundled-style tiny synthetic sequence, a
 few iterations, the CPU field-speed cases run once): CI runs it so the script cannot rot between GPU loans.
 
 Usage (repository root)::
 
-    bash benchmarks/gpu_check.sh --data shared/data/tum_fr1_rpy --out $OUT          # on the GPU machine
+    bash benchmarks/gpu_check.sh --data .gpu_data/tum_fr1_rpy --out $OUT --scratch /tmp/gc --budget-s 420  # GPU
     bash benchmarks/gpu_check.sh --smoke --out /tmp/gpu_smoke                         # anywhere, CPU only
 """
 
@@ -29,6 +30,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -37,19 +39,38 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(name: str, cmd: list[str], limit_s: int, env: dict, log: Path) -> dict:
-    t0 = time.perf_counter()
-    with open(log, "a") as fh:
-        fh.write(f"\n===== {name}: {' '.join(cmd)}\n")
-        fh.flush()
-        try:
-            p = subprocess.run(cmd, cwd=ROOT, env=env, stdout=fh, stderr=subprocess.STDOUT, timeout=limit_s)
-            code = p.returncode
-        except subprocess.TimeoutExpired:
-            code = "timeout"
-    wall = time.perf_counter() - t0
-    print(f"[gpu_check] {name}: {'ok' if code == 0 else code} in {wall:.0f} s", flush=True)
-    return {"step": name, "command": " ".join(cmd), "returncode": code, "wall_s": round(wall, 1)}
+class Steps:
+    """The check's steps, run one after another under one overall deadline (``--budget-s``): a step gets the
+    smaller of its own limit and the time left, and is skipped when under 15 s is left, so a device lease that ends
+    mid-check still returns every finished step's result."""
+
+    def __init__(self, env: dict, log: Path, budget_s: float):
+        self.env, self.log, self.done = env, log, []
+        self.deadline = time.perf_counter() + budget_s if budget_s > 0 else float("inf")
+
+    def run(self, name: str, cmd: list[str], limit_s: int, env: dict | None = None) -> dict:
+        left = self.deadline - time.perf_counter()
+        if left < 15:
+            print(f"[gpu_check] {name}: skipped ({left:.0f} s of the budget left)", flush=True)
+            step = {"step": name, "command": " ".join(cmd), "returncode": "skipped", "wall_s": 0.0}
+            self.done.append(step)
+            return step
+        limit = int(min(limit_s, left))
+        t0 = time.perf_counter()
+        with open(self.log, "a") as fh:
+            fh.write(f"\n===== {name} (limit {limit} s): {' '.join(cmd)}\n")
+            fh.flush()
+            try:
+                p = subprocess.run(cmd, cwd=ROOT, env=env or self.env, stdout=fh, stderr=subprocess.STDOUT,
+                                   timeout=limit)
+                code = p.returncode
+            except subprocess.TimeoutExpired:
+                code = "timeout"
+        wall = time.perf_counter() - t0
+        print(f"[gpu_check] {name}: {'ok' if code == 0 else code} in {wall:.0f} s", flush=True)
+        step = {"step": name, "command": " ".join(cmd), "returncode": code, "wall_s": round(wall, 1)}
+        self.done.append(step)
+        return step
 
 
 def device_info(smoke: bool) -> dict:
@@ -61,6 +82,11 @@ def device_info(smoke: bool) -> dict:
         info["device"] = torch.cuda.get_device_name()
         info["cuda_runtime"] = torch.version.cuda
         try:
+            info["driver"] = subprocess.run(["nvidia-smi", "--query-gpu=driver_version", "--format=csv,noheader"],
+                                            capture_output=True, text=True, timeout=20).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            info["driver"] = None
+        try:
             import triton
 
             info["triton"] = triton.__version__
@@ -68,6 +94,7 @@ def device_info(smoke: bool) -> dict:
             info["triton"] = None
     else:
         info["device"] = "cpu"
+    sys.path.insert(0, str(ROOT))
     try:
         import tdfields
 
@@ -75,6 +102,14 @@ def device_info(smoke: bool) -> dict:
     except ImportError:
         pass
     return info
+
+
+def _git_commit() -> str | None:
+    try:
+        p = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, timeout=10)
+        return p.stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        return None
 
 
 def tiny_sequence(out: Path) -> Path:
@@ -87,80 +122,11 @@ def tiny_sequence(out: Path) -> Path:
     return seq
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", required=True, help="folder for gpu_check.json, gpu_check.md and the logs")
-    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "tum_fr1_rpy"),
-                    help="the TUM fr1_rpy excerpt (copy it into the repository to take it to a GPU machine)")
-    ap.add_argument("--frames", type=int, default=40, help="frames of the excerpt for the SLAM step (default 40)")
-    ap.add_argument("--smoke", action="store_true", help="CPU, toy sizes: the whole script in about a minute")
-    args = ap.parse_args(argv)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    log = out / "gpu_check.log"
-    log.write_text("")
-    info = device_info(args.smoke)
-    if not args.smoke and not info["cuda"]:
-        print("gpu_check: error: no CUDA device here; use --smoke for the CPU dry run", file=sys.stderr)
-        return 2
-    if not args.smoke and not Path(args.data).is_dir():
-        print(f"gpu_check: error: data folder not found: {args.data}", file=sys.stderr)
-        return 2
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               PYTHONUNBUFFERED="1")
-    py = sys.executable
-    dev = "cpu" if args.smoke else "cuda"
-    steps = []
-    triton_tests = "tests/tdfields/kernels/triton/test_autograd.py"
-    # ---- 1. CUDA tests and a short SLAM run on the device, both loop modes
-    if args.smoke:
-        env_t = dict(env, TRITON_INTERPRET="1")
-        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", "-x", triton_tests, "-k", "cp or triplane"], 300, env_t, log))
-    else:
-        env_t = dict(env, TRITON_INTERPRET="0")
-        steps.append(_run("cuda-tests", [py, "-m", "pytest", "-q", triton_tests],
-                          150, env_t, log))
-    seq = tiny_sequence(out)
-    tiny = ["data.max_frames=6", "tracking.iters=3", "tracking.pixels=100", "mapping.iters=3", "mapping.iters_first=5",
-            "mapping.pixels=200", "rendering.n_stratified=8", "rendering.n_importance=4"]
-    # the third: the mapper in a child process (mapper_process), whose map lives on the device too; the fourth: the
-    # levers of tum/fr1_rpy-cpu-fast (second-order tracker, matrix once a round, mapping by need, carried moments on
-    # the device, the fused tail, which falls back to PyTorch ops there)
-    fast = ["parallel=true", "tracking.optimizer=gauss_newton", "tracking.gn_hessian=first", "mapping.schedule=by_need",
-            "mapping.need_young=2", "mapping.optimizer_state=persistent", "rendering.fused=true"]
-    for mode, name, over in (("false", "parallel=false", ["parallel=false"]),
-                             ("true", "parallel=true", ["parallel=true"]),
-                             ("process", "parallel=process", ["parallel=true", "mapper_process=true"]),
-                             ("fast", "fast-levers", fast)):
-        steps.append(_run(f"slam-{dev}-{name}",
-                          [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", "--device", dev, "--data", str(seq),
-                           "--out", str(out / f"tiny_{mode}"), *tiny, *over], 120, env, log))
-    # ---- 2. field speed
-    bench = [py, "-m", "pytest", "benchmarks/test_field_speed.py", "-p", "no:cacheprovider", "-q"]
-    if args.smoke:
-        steps.append(_run("field-speed", bench + ["--benchmark-disable", "-k", "lrslam-cp and fused"], 300, env, log))
-    else:
-        steps.append(_run("field-speed", bench + ["--benchmark-enable", "-k", "cuda", "--benchmark-max-time=0.2",
-                                                  "--benchmark-min-rounds=5",
-                                                  f"--benchmark-json={out / 'field_speed_cuda.json'}"], 120, env, log))
-    # ---- 3. lrslam vs eslam at the paper's TUM settings (smoke: the tiny sequence, synthetic preset)
-    if args.smoke:
-        sc = ["--sequences", f"synthetic={seq}", "--seeds", "1", *tiny]
-    else:
-        sc = ["--sequences", f"tum/fr1_rpy={args.data}", "--seeds", "1", f"data.max_frames={args.frames}"]
-    steps.append(_run("slam", [py, "benchmarks/slam_compare.py", *sc[:2], "--representations", "lrslam", "eslam",
-                               "--no-mesh", "--quiet", "--out", str(out / "slam"), *sc[2:], f"device={dev}"],
-                      60 if args.smoke else 270, env, log))
-    # ---- 4. the second-order tracker against Adam on the device (smoke: 3 frames mapped, one test frame), with its
-    # normal equations' matrix at every evaluation and at a round's first only (tracking.gn_hessian)
-    gn = ["--frames", "3", "--test-frames", "3", "--offsets", "1.0", "--", "mapping.iters=3", "mapping.iters_first=5",
-          "tracking.pixels=100"] if args.smoke else ["--"]
+def summarize(info: dict, steps: list[dict], out: Path, smoke: bool) -> dict:
+    """Gather the finished steps' JSON into ``gpu_check.json`` + ``gpu_check.md`` (rewritten after every step)."""
     result = {"info": info, "steps": steps, "gn_tracker": {}}
     for mode in ("every", "first"):
-        steps.append(_run(f"gn-tracker-{mode}", [py, "benchmarks/gn_convergence.py", "--out", str(out / f"gn_{mode}"),
-                                                 "--device", dev, *gn, f"tracking.gn_hessian={mode}"],
-                          120 if args.smoke else 150, env, log))
-        gn_json = out / f"gn_{mode}" / "gn_convergence.json"
+        gn_json = out / f"gn_{mode}.json"
         if gn_json.is_file():
             g = json.loads(gn_json.read_text())
             result["gn_tracker"][mode] = {
@@ -168,16 +134,16 @@ def main(argv=None) -> int:
                 "adam_ms_per_iteration": 1000 * g["adam_s_per_iteration"],
                 "gn_evaluations_to_1mm_0.1deg": [c["gn_evals_to_1mm_0.1deg"] for c in g["cases"]],
                 "adam_iterations_to_1mm_0.1deg": [c["adam_iters_to_1mm_0.1deg"] for c in g["cases"]]}
-    sc_json = out / "slam" / "slam_compare.json"
-    if sc_json.is_file():
-        result["slam"] = json.loads(sc_json.read_text())["summary"]
+    if (out / "slam_compare.json").is_file():
+        result["slam"] = json.loads((out / "slam_compare.json").read_text())["summary"]
     fs_json = out / "field_speed_cuda.json"
     if fs_json.is_file():
         result["field_speed"] = [{"name": b["name"], "median_ms": 1000 * b["stats"]["median"]}
                                  for b in json.loads(fs_json.read_text())["benchmarks"]]
     (out / "gpu_check.json").write_text(json.dumps(result, indent=2))
     lines = [f"GPU check {info['date']} on {info['device']} (torch {info['torch']}, triton {info.get('triton')}, "
-             f"tdfields {info.get('tdfields')}){' [smoke run on CPU]' if args.smoke else ''}", "",
+             f"tdfields {info.get('tdfields')}, commit {str(info.get('commit'))[:7]})"
+             f"{' [smoke run on CPU]' if smoke else ''}", "",
              "| step | result | wall s |", "|---|---|---|"]
     lines += [f"| {s['step']} | {'ok' if s['returncode'] == 0 else s['returncode']} | {s['wall_s']} |" for s in steps]
     if "slam" in result:
@@ -196,8 +162,106 @@ def main(argv=None) -> int:
         lines += ["", "| case | median ms |", "|---|---|"]
         lines += [f"| {b['name']} | {b['median_ms']:.3f} |" for b in result["field_speed"]]
     (out / "gpu_check.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0 if all(s["returncode"] == 0 for s in steps) else 1
+    return result
+
+
+def _keep(src: Path, dst: Path) -> None:
+    """Copy a step's JSON to the top of ``--out`` (a device call returns a few files, two folders deep at most)."""
+    if src.is_file():
+        shutil.copy(src, dst)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", required=True, help="folder for gpu_check.json, gpu_check.md, the log and the steps' JSON")
+    ap.add_argument("--scratch", default=None,
+                    help="folder for the runs' own outputs (default: OUT/work); only the JSONs summarized are "
+                         "copied to OUT")
+    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "tum_fr1_rpy"),
+                    help="the TUM fr1_rpy excerpt (copy it into the repository to take it to a GPU machine)")
+    ap.add_argument("--frames", type=int, default=40, help="frames of the excerpt for the SLAM step (default 40)")
+    ap.add_argument("--budget-s", type=float, default=0,
+                    help="overall deadline in seconds for all steps (0: none); a step past it is skipped")
+    ap.add_argument("--commit", default=None,
+                    help="the commit checked, for the stamp (default: git rev-parse HEAD, where .git is present)")
+    ap.add_argument("--smoke", action="store_true", help="CPU, toy sizes: the whole script in about a minute")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    work = Path(args.scratch) if args.scratch else out / "work"
+    work.mkdir(parents=True, exist_ok=True)
+    log = out / "gpu_check.log"
+    log.write_text("")
+    info = device_info(args.smoke)
+    info["commit"] = args.commit or _git_commit()
+    if not args.smoke and not info["cuda"]:
+        print("gpu_check: error: no CUDA device here; use --smoke for the CPU dry run", file=sys.stderr)
+        return 2
+    if not args.smoke and not Path(args.data).is_dir():
+        print(f"gpu_check: error: data folder not found: {args.data}", file=sys.stderr)
+        return 2
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONUNBUFFERED="1")
+    py = sys.executable
+    dev = "cpu" if args.smoke else "cuda"
+    steps = Steps(env, log, args.budget_s)
+
+    def step(*a, **k):
+        steps.run(*a, **k)
+        summarize(info, steps.done, out, args.smoke)
+
+    # ---- 1. short SLAM runs on the device, both loop modes: the first thing to know is that --device cuda runs
+    seq = tiny_sequence(work)
+    tiny = ["data.max_frames=6", "tracking.iters=3", "tracking.pixels=100", "mapping.iters=3", "mapping.iters_first=5",
+            "mapping.pixels=200", "rendering.n_stratified=8", "rendering.n_importance=4"]
+    # the third: the mapper in a child process (mapper_process), whose map lives on the device too; the fourth: the
+    # levers of tum/fr1_rpy-cpu-fast (second-order tracker, matrix once a round, mapping by need, carried moments on
+    # the device, the fused tail, which falls back to PyTorch ops there)
+    fast = ["parallel=true", "tracking.optimizer=gauss_newton", "tracking.gn_hessian=first", "mapping.schedule=by_need",
+            "mapping.need_young=2", "mapping.optimizer_state=persistent", "rendering.fused=true"]
+    for mode, name, over in (("false", "parallel=false", ["parallel=false"]),
+                             ("true", "parallel=true", ["parallel=true"]),
+                             ("process", "parallel=process", ["parallel=true", "mapper_process=true"]),
+                             ("fast", "fast-levers", fast)):
+        step(f"slam-{dev}-{name}", [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", "--device", dev, "--data",
+                                    str(seq), "--out", str(work / f"tiny_{mode}"), *tiny, *over], 90)
+    # ---- 2. the Triton kernel's tests, compiled for the GPU
+    triton_tests = "tests/tdfields/kernels/triton/test_autograd.py"
+    if args.smoke:
+        step("cuda-tests", [py, "-m", "pytest", "-q", "-x", triton_tests, "-k", "cp or triplane"], 300,
+             dict(env, TRITON_INTERPRET="1"))
+    else:
+        step("cuda-tests", [py, "-m", "pytest", "-q", triton_tests], 120, dict(env, TRITON_INTERPRET="0"))
+    # ---- 3. the second-order tracker against Adam on the device (smoke: 3 frames mapped, one test frame), with its
+    # normal equations' matrix at every evaluation and at a round's first only (tracking.gn_hessian)
+    gn = ["--frames", "3", "--test-frames", "3", "--offsets", "1.0", "--", "mapping.iters=3", "mapping.iters_first=5",
+          "tracking.pixels=100"] if args.smoke else ["--"]
+    for mode in ("every", "first"):
+        steps.run(f"gn-tracker-{mode}", [py, "benchmarks/gn_convergence.py", "--out", str(work / f"gn_{mode}"),
+                                         "--device", dev, *gn, f"tracking.gn_hessian={mode}"], 120)
+        _keep(work / f"gn_{mode}" / "gn_convergence.json", out / f"gn_{mode}.json")
+        summarize(info, steps.done, out, args.smoke)
+    # ---- 4. field speed
+    bench = [py, "-m", "pytest", "benchmarks/test_field_speed.py", "-p", "no:cacheprovider", "-q"]
+    if args.smoke:
+        step("field-speed", bench + ["--benchmark-disable", "-k", "lrslam-cp and fused"], 300)
+    else:
+        step("field-speed", bench + ["--benchmark-enable", "-k", "cuda", "--benchmark-max-time=0.2",
+                                     "--benchmark-min-rounds=5", f"--benchmark-json={out / 'field_speed_cuda.json'}"],
+             120)
+    # ---- 5. lrslam vs eslam at the paper's TUM settings (smoke: the tiny sequence, synthetic preset); last, as the
+    # longest step
+    if args.smoke:
+        sc = ["--sequences", f"synthetic={seq}", "--seeds", "1", *tiny]
+    else:
+        sc = ["--sequences", f"tum/fr1_rpy={args.data}", "--seeds", "1", f"data.max_frames={args.frames}"]
+    steps.run("slam", [py, "benchmarks/slam_compare.py", *sc[:2], "--representations", "lrslam", "eslam",
+                       "--no-mesh", "--quiet", "--out", str(work / "slam"), *sc[2:], f"device={dev}"],
+              60 if args.smoke else 270)
+    _keep(work / "slam" / "slam_compare.json", out / "slam_compare.json")
+    result = summarize(info, steps.done, out, args.smoke)
+    print((out / "gpu_check.md").read_text(), end="")
+    return 0 if all(s["returncode"] == 0 for s in result["steps"]) else 1
 
 
 if __name__ == "__main__":
