@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     from _stamp import stamp
 
     res = measure(args.frames, args.test_frames, args.offsets, args.overrides, args.device)
-    res.update(stamp())
+    res.update(stamp(args.device))  # the device measured on, not the stamp's default
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "gn_convergence.json").write_text(json.dumps(res, indent=1, default=str) + "\n")
     print(f"per evaluation: GN {res['gn_s_per_evaluation'] * 1000:.1f} ms, Adam {res['adam_s_per_iteration'] * 1000:.1f} ms"
