@@ -1,6 +1,6 @@
 import torch
 
-from slam.core.optim import adam
+from slam.core.optim import FusedAdam, adam
 
 
 def test_fused_on_cpu_and_same_steps_as_the_default_adam():
@@ -9,7 +9,8 @@ def test_fused_on_cpu_and_same_steps_as_the_default_adam():
     b = [torch.nn.Parameter(p.detach().clone()) for p in a]
     opt_a = adam([{"params": a[:1], "lr": 1e-2}, {"params": a[1:], "lr": 1e-3}], betas=(0.5, 0.999))
     opt_b = torch.optim.Adam([{"params": b[:1], "lr": 1e-2}, {"params": b[1:], "lr": 1e-3}], betas=(0.5, 0.999))
-    assert opt_a.defaults["fused"] is True and not opt_b.defaults.get("fused")
+    assert isinstance(opt_a, FusedAdam) and not opt_b.defaults.get("fused")
+    assert adam([{"params": a[:1], "lr": 1e-2}], reference=True).defaults["fused"] is True
     for step in range(20):
         g = torch.randn(50)
         for params, opt in ((a, opt_a), (b, opt_b)):
@@ -80,3 +81,50 @@ def test_vector_adam_takes_the_steps_of_torch_adam_with_two_groups():
         (p - target).pow(3).abs().sum().backward()
         ours.step()
     torch.testing.assert_close(p.detach(), torch.cat((q, t)).detach(), rtol=1e-12, atol=1e-14)
+
+
+def test_fused_adam_is_torch_fused_adam_bit_for_bit():
+    """FusedAdam against torch.optim.Adam(fused=True), as the mapper uses them: two groups at their own rates, two
+    dtypes in one group, a parameter with no gradient on some steps (no step, no state), zero_grad(set_to_none), and
+    moments handed over from one to the other midway (carried moments: torch's state dict entries, loaded into the
+    other by parameter). Parameters and every state tensor equal bit for bit."""
+    torch.manual_seed(0)
+    start = [torch.randn(40), torch.randn(6, 5, dtype=torch.float64), torch.randn(()), torch.randn(3, 2)]
+
+    def make(cls, **kw):
+        ps = [torch.nn.Parameter(t.clone()) for t in start]
+        return ps, cls([{"params": ps[:2], "lr": 1e-2}, {"params": ps[2:], "lr": 3e-3}], **kw)
+
+    ours, opt_a = make(FusedAdam)
+    ref, opt_b = make(torch.optim.Adam, fused=True)
+    g = torch.Generator().manual_seed(1)
+    for step in range(12):
+        if step == 6:  # the moments change hands, as MapMoments carries them between calls
+            state_a = {i: {k: v.clone() for k, v in opt_a.state[p].items()} for i, p in enumerate(ours)
+                       if p in opt_a.state}
+            state_b = {i: {k: v.clone() for k, v in opt_b.state[p].items()} for i, p in enumerate(ref)
+                       if p in opt_b.state}
+            ours2, opt_a = make(FusedAdam)
+            ref2, opt_b = make(torch.optim.Adam, fused=True)
+            for new, old, opt, state in ((ours2, ours, opt_a, state_b), (ref2, ref, opt_b, state_a)):
+                for i, (n, o) in enumerate(zip(new, old)):
+                    n.data.copy_(o.data)
+                    if i in state:
+                        opt.state[n] = {k: v.clone() for k, v in state[i].items()}
+            ours, ref = ours2, ref2
+        noise = [torch.randn(t.shape, generator=g, dtype=t.dtype) for t in start]
+        for ps, opt in ((ours, opt_a), (ref, opt_b)):
+            opt.zero_grad(set_to_none=True)
+            loss = sum(((p - n) ** 3).abs().sum() for p, n in zip(ps[:3], noise))
+            if step % 3 == 0:  # the last parameter gets a gradient only on some steps
+                loss = loss + (ps[3] * noise[3]).sum()
+            loss.backward()
+            opt.step()
+    for p, q in zip(ours, ref):
+        assert torch.equal(p, q)
+        assert (p in opt_a.state) == (q in opt_b.state)
+        if p in opt_a.state:
+            for k in ("step", "exp_avg", "exp_avg_sq"):
+                assert torch.equal(opt_a.state[p][k], opt_b.state[q][k]), k
+            assert opt_a.state[p]["step"].dtype == opt_b.state[q]["step"].dtype == torch.float32
+    assert float(opt_a.state[ours[3]]["step"]) == 4.0  # steps 0, 3, 6 and 9

@@ -84,19 +84,39 @@ def test_tracker_returns_init_on_nan_loss(tiny_seq):
 
 
 @pytest.mark.parametrize("parallel", ["false", "true"])
-def test_deterministic_for_a_seed_wherever_the_keyframes_live(tiny_seq, parallel):
+def test_deterministic_for_a_seed_wherever_the_keyframes_live_and_whichever_adam(tiny_seq, parallel, monkeypatch):
     # b keeps one keyframe's images in memory and spills the rest: every mapping window reads spilled keyframes
-    # back, on the mapping thread in parallel mode; the trajectory and the map must be bit-identical
-    sched = ["data.max_frames=7", "mapping.every_frame=1", "mapping.keyframe_every=1", f"parallel={parallel}"]
+    # back, on the mapping thread in parallel mode; c maps with torch.optim.Adam(fused=True), the reference of the
+    # mapper's FusedAdam, here with carried moments and BA (two optimisers a call). Trajectory and map bit-identical.
+    import functools
+
+    import slam.engine.mapper as mapper
+    from slam.core.optim import FusedAdam, adam
+
+    sched = ["data.max_frames=7", "mapping.every_frame=1", "mapping.keyframe_every=1", f"parallel={parallel}",
+             "mapping.optimizer_state=persistent", "mapping.ba_min_keyframes=2"]
+    made = []
+
+    def spied(groups, **kw):
+        made.append(adam(groups, **kw))
+        return made[-1]
+
+    monkeypatch.setattr(mapper, "adam", spied)
     a = _system(tiny_seq, [*sched, "mapping.keyframes_in_memory=0"])
     a.run(progress=False)
     b = _system(tiny_seq, [*sched, "mapping.keyframes_in_memory=1"])
     b.run(progress=False)
+    assert made and all(isinstance(o, FusedAdam) for o in made) and any(o.state for o in made)
+    assert sum(len(o.param_groups[0]["params"]) == 1 for o in made) >= 3  # BA's pose optimisers ran
+    monkeypatch.setattr(mapper, "adam", functools.partial(adam, reference=True))
+    c = _system(tiny_seq, [*sched, "mapping.keyframes_in_memory=0"])
+    c.run(progress=False)
     assert a.keyframes.spilled_bytes == 0 and b.keyframes.spilled_bytes == (len(b.keyframes) - 1) * 60 * 80 * 16
     assert b.keyframes.nbytes == 60 * 80 * 16
-    assert torch.equal(torch.stack(a.state.est), torch.stack(b.state.est))
-    for name, t in a.scene.state_dict().items():
-        assert torch.equal(b.scene.state_dict()[name], t), name
+    for other in (b, c):
+        assert torch.equal(torch.stack(a.state.est), torch.stack(other.state.est))
+        for name, t in a.scene.state_dict().items():
+            assert torch.equal(other.scene.state_dict()[name], t), name
 
 
 @pytest.mark.parametrize("representation,parallel", [("lrslam", "true"), ("eslam", "true"), ("lrslam", "false")])
