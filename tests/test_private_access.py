@@ -28,6 +28,8 @@ THIRD_PARTY = {"_foreach_norm": "torch's fused multi-tensor norm", "_foreach_mul
                "_foreach_mul": "torch's fused multiply", "_foreach_add": "torch's fused add",
                "_foreach_div": "torch's fused division", "_foreach_sub": "torch's fused subtraction",
                "_foreach_neg": "torch's fused negation",
+               "_fused_adam_": "the kernel torch.optim.Adam(fused=True) calls; slam.core.optim.FusedAdam steps it "
+                               "(torch.optim where torch lacks it), tested bit for bit against torch.optim",
                "_asdict": "namedtuple's public method", "_replace": "namedtuple's public method",
                "_fields": "namedtuple's public attribute", "_exit": "os._exit (no cleanup after a fork)",
                "_getframe": "sys._getframe", "_scene": "trimesh's Embree intersector keeps its scene there",
