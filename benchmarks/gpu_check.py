@@ -1,4 +1,4 @@
-"""The prepared GPU check: one run on one CUDA device, under 8 minutes, one JSON + markdown stamped with the device.
+"""The prepared GPU check: one run on one CUDA device within ``--budget-s``, one JSON + markdown stamped with it.
 
 Steps, in this order (each with its own time limit, and all under ``--budget-s``, so one slow step cannot eat the
 others' time and a lease that ends early still returns what finished; the summary is rewritten after every step):
@@ -172,9 +172,10 @@ def summarize(info: dict, steps: list[dict], out: Path, smoke: bool) -> dict:
     return result
 
 
-def _keep(src: Path, dst: Path) -> None:
-    """Copy a step's JSON to the top of ``--out`` (a device call returns a few files, two folders deep at most)."""
-    if src.is_file():
+def _keep(step: dict, src: Path, dst: Path) -> None:
+    """Copy a step's JSON to the top of ``--out`` (a device call returns a few files, two folders deep at most),
+    only when the step ran through (a reused scratch folder may hold an earlier run's)."""
+    if step["returncode"] == 0 and src.is_file():
         shutil.copy(src, dst)
 
 
@@ -201,6 +202,8 @@ def main(argv=None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     log = out / "gpu_check.log"
     log.write_text("")
+    for name in ("gn_every.json", "gn_first.json", "slam_compare.json", "field_speed_cuda.json"):
+        (out / name).unlink(missing_ok=True)  # an earlier run's, which a failed step would otherwise leave summarized
     info = device_info(args.smoke)
     info["commit"] = args.commit or _git_commit()
     if not args.smoke and not info["cuda"]:
@@ -246,9 +249,9 @@ def main(argv=None) -> int:
     gn = ["--frames", "3", "--test-frames", "3", "--offsets", "1.0", "--", "mapping.iters=3", "mapping.iters_first=5",
           "tracking.pixels=100"] if args.smoke else ["--"]
     for mode in ("every", "first"):
-        steps.run(f"gn-tracker-{mode}", [py, "benchmarks/gn_convergence.py", "--out", str(work / f"gn_{mode}"),
-                                         "--device", dev, *gn, f"tracking.gn_hessian={mode}"], 120)
-        _keep(work / f"gn_{mode}" / "gn_convergence.json", out / f"gn_{mode}.json")
+        ran = steps.run(f"gn-tracker-{mode}", [py, "benchmarks/gn_convergence.py", "--out", str(work / f"gn_{mode}"),
+                                               "--device", dev, *gn, f"tracking.gn_hessian={mode}"], 120)
+        _keep(ran, work / f"gn_{mode}" / "gn_convergence.json", out / f"gn_{mode}.json")
         summarize(info, steps.done, out, args.smoke)
     # ---- 4. field speed
     bench = [py, "-m", "pytest", "benchmarks/test_field_speed.py", "-p", "no:cacheprovider", "-q"]
@@ -264,10 +267,10 @@ def main(argv=None) -> int:
         sc = ["--sequences", f"synthetic={seq}", "--seeds", "1", *tiny]
     else:
         sc = ["--sequences", f"tum/fr1_rpy={args.data}", "--seeds", "1", f"data.max_frames={args.frames}"]
-    steps.run("slam", [py, "benchmarks/slam_compare.py", *sc[:2], "--representations", "lrslam", "eslam",
-                       "--no-mesh", "--quiet", "--out", str(work / "slam"), *sc[2:], f"device={dev}"],
-              60 if args.smoke else 270)
-    _keep(work / "slam" / "slam_compare.json", out / "slam_compare.json")
+    ran = steps.run("slam", [py, "benchmarks/slam_compare.py", *sc[:2], "--representations", "lrslam", "eslam",
+                             "--no-mesh", "--quiet", "--out", str(work / "slam"), *sc[2:], f"device={dev}"],
+                    60 if args.smoke else 270)
+    _keep(ran, work / "slam" / "slam_compare.json", out / "slam_compare.json")
     result = summarize(info, steps.done, out, args.smoke)
     print((out / "gpu_check.md").read_text(), end="")
     return 0 if all(s["returncode"] == 0 for s in result["steps"]) else 1
