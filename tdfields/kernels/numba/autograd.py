@@ -147,12 +147,10 @@ class NumbaCompose(torch.autograd.Function):
         mod = compose_kernels(rank, channels, _dtype_name(uc.dtype))
         flat = plane.view(-1, channels).numpy()
         live = _live_cells(read_at, uc.shape[0], vc.shape[0])
-        ranges = split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))
-        if live is None:
-            run([lambda a=a, b=b: mod.compose_forward(uc.numpy(), vc.numpy(), flat, a, b) for a, b in ranges])
-        else:
-            run([lambda a=a, b=b: mod.compose_forward_cells(uc.numpy(), vc.numpy(), flat, live, a, b)
-                 for a, b in ranges])
+        # every cell, or only those flagged live: the same FMA chain either way
+        kernel, flags = (mod.compose_forward, ()) if live is None else (mod.compose_forward_cells, (live,))
+        run([lambda a=a, b=b: kernel(uc.numpy(), vc.numpy(), flat, *flags, a, b)
+             for a, b in split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))])
         ctx.save_for_backward(uc, vc)
         ctx.rank = rank
         return plane
