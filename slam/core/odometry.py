@@ -173,7 +173,9 @@ def icp_relative_pose(
         min_cos: smallest cosine between corresponding normals.
         min_inliers: share of the current frame's valid points that must find a correspondence (finest level).
         max_jump: relative depth jump between neighbours beyond which no normal is computed (depth edges).
-        kernel: associate points by one numba pass (the same result bit for bit); False: by tensor ops.
+        kernel: the registration as numba kernels (:mod:`slam.core.odometry_kernels`; the same formulas, the
+            normal equations summed in another order: the pose to the last bits of a double); False: tensor ops,
+            the reference.
 
     Returns:
         :class:`ICPResult`.
@@ -184,6 +186,13 @@ def icp_relative_pose(
     T = (torch.eye(4, dtype=dt) if init is None else init.detach().to("cpu", dt)).clone()
     dp, dc = depth_prev.detach().to("cpu", dt), depth_cur.detach().to("cpu", dt)
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    if kernel:
+        from slam.core.odometry_kernels import register  # numba compiles (or loads its cache) on first use only
+
+        inl, rmse, failed = register(dp.numpy(), dc.numpy(), T.numpy(), (fx, fy, cx, cy), levels, iters, max_dist,
+                                     min_cos, max_jump)
+        ok = not failed and inl >= min_inliers and rmse < max_dist[-1]
+        return ICPResult(T.float(), inl, rmse, bool(ok and torch.isfinite(T).all()))
     inl, rmse = 0.0, float("inf")
     for f, n_it, dmax in zip(levels, iters, max_dist):
         p_depth, c_depth = _downsample(dp, f), _downsample(dc, f)
@@ -195,7 +204,7 @@ def icp_relative_pose(
         if pts.shape[0] < 50 or int(okp.sum()) < 50:
             return ICPResult(T.float(), 0.0, float("inf"), False)
         for _ in range(n_it):
-            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos, kernel)
+            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos, kernel=False)
             if idx.numel() < 50:
                 return ICPResult(T.float(), idx.numel() / max(pts.shape[0], 1), float("inf"), False)
             xi, r = _gauss_newton_step(src, tgt, nrm)

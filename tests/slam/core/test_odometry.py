@@ -87,10 +87,12 @@ def test_a_room_or_a_real_office_has_no_unobserved_direction(tiny_seq, shared_da
         assert unobserved_directions(torch.as_tensor(real[k].depth), real.intrinsics, 3e-4).shape[1] == 0
 
 
-def test_the_association_kernel_gives_the_references_registration_bit_for_bit(shared_data):
-    # the numba pass (slam.core.odometry_kernels) is a cache of the tensor-op reference: same matches, same order,
-    # so the same pose; checked on real frames, from the loop's start and from a start 2 degrees and 3 cm off
+def test_the_icp_kernels_give_the_references_registration(shared_data):
+    # the numba registration (slam.core.odometry_kernels) stands for the tensor-op reference: the same matches, and
+    # the normal equations summed in another order, so the pose agrees to the last bits of a double and the float32
+    # pose handed on is the reference's; checked on real frames, from the loop's start and from 2 degrees and 3 cm off
     from slam.core import odometry
+    from slam.core.odometry_kernels import level_points
 
     real = load_dataset(shared_data / "tum_fr1_rpy_0_124")
     off = _motion(2.0, 0.0, [0.03, 0.0, 0.0]).float()
@@ -98,8 +100,25 @@ def test_the_association_kernel_gives_the_references_registration_bit_for_bit(sh
         a, b = torch.as_tensor(real[i].depth), torch.as_tensor(real[j].depth)
         fast = icp_relative_pose(a, b, real.intrinsics, init=init)
         ref = icp_relative_pose(a, b, real.intrinsics, init=init, kernel=False)
-        assert fast.ok and torch.equal(fast.relative, ref.relative)
-        assert (fast.inliers, fast.rmse_m) == (ref.inliers, ref.rmse_m)
+        assert fast.ok and ref.ok and torch.equal(fast.relative, ref.relative)
+        assert abs(fast.inliers - ref.inliers) < 1e-12 and abs(fast.rmse_m - ref.rmse_m) < 1e-12
+    # too few matches from a start far off: both stop at the same step and report the same failure
+    far = _motion(0.0, 0.0, [0.0, 0.0, 3.0]).float()
+    fast = icp_relative_pose(a, b, real.intrinsics, init=far)
+    ref = icp_relative_pose(a, b, real.intrinsics, init=far, kernel=False)
+    assert not fast.ok and not ref.ok and torch.equal(fast.relative, ref.relative)
+    assert abs(fast.inliers - ref.inliers) < 1e-12 and fast.rmse_m == ref.rmse_m == float("inf")
+    # a level's points, normals and their validity, NaN depth included
+    depth = torch.as_tensor(real[10].depth).double()
+    depth[40, 50] = float("nan")
+    cam = (real.intrinsics.fx, real.intrinsics.fy, real.intrinsics.cx, real.intrinsics.cy)
+    vp, np_, okp = odometry._level_points(depth, cam, 0.1)
+    v, n, ok = torch.empty_like(vp), torch.empty_like(np_), torch.empty_like(okp)
+    level_points(depth.numpy(), *cam, 0.1, v.numpy(), n.numpy(), ok.numpy())
+    assert torch.equal(ok, okp) and int(ok.sum()) > depth.numel() // 3
+    assert not any(bool(ok[r, c]) for r, c in ((40, 50), (39, 50), (41, 50), (40, 49), (40, 51)))  # NaN and beside
+    assert torch.allclose(v[~v.isnan()], vp[~vp.isnan()], rtol=0, atol=0)
+    assert float((n - np_)[ok].abs().max()) < 1e-12
     # points the projection must drop, as the reference does: NaN, behind the camera, outside the image
     depth = torch.as_tensor(real[10].depth).double()
     cam = (real.intrinsics.fx, real.intrinsics.fy, real.intrinsics.cx, real.intrinsics.cy)
