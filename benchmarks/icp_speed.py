@@ -1,12 +1,14 @@
-"""Depth ICP with its association kernel against the tensor-op reference (issue 21;
-docs/benchmarks.md, "Depth ICP's association as one kernel").
+"""Depth ICP as numba kernels against the tensor-op reference (issue 21; docs/benchmarks.md,
+"Depth ICP as kernels").
 
 For every consecutive pair of frames of each sequence, one thread, ``icp_relative_pose`` runs with
-``kernel=True`` and ``kernel=False`` in turn (the kernel compiled or loaded before timing); per sequence: the
-median time of a registration each way, and how many registrations agree bit for bit (pose, inlier share, RMS).
+``kernel=True`` and ``kernel=False`` in turn (the kernels compiled or loaded before timing); per sequence: the
+median time of a registration each way, and how many registrations agree: the same float32 pose and verdict,
+inlier share and RMS within 1e-12 (the kernels sum the normal equations in another order, so the float64
+pose may differ in its last bits; ``max_pose_diff`` is the largest float32 pose difference seen).
 
     python benchmarks/icp_speed.py --data ../shared/data/tum_fr1_rpy_0_124 ../shared/data/tum_fr1_rpy \\
-        --out benchmarks/results/icp_speed.json
+        --out benchmarks/results/icp_speed_registration.json
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ def measure(path: Path) -> dict:
     depths = [torch.as_tensor(ds[i].depth, dtype=torch.float32) for i in range(len(ds))]
     icp_relative_pose(depths[0], depths[1], ds.intrinsics)  # numba compiles or loads its cache here, untimed
     times = {"kernel": [], "reference": []}
-    same = 0
+    same, max_diff = 0, 0.0
     for i in range(len(depths) - 1):
         res = {}
         for name in (("kernel", "reference") if i % 2 == 0 else ("reference", "kernel")):
@@ -41,9 +43,11 @@ def measure(path: Path) -> dict:
             res[name] = icp_relative_pose(depths[i], depths[i + 1], ds.intrinsics, kernel=name == "kernel")
             times[name].append(time.perf_counter() - t0)
         a, b = res["kernel"], res["reference"]
-        same += torch.equal(a.relative, b.relative) and (a.inliers, a.rmse_m, a.ok) == (b.inliers, b.rmse_m, b.ok)
+        max_diff = max(max_diff, float((a.relative - b.relative).abs().max()))
+        close = abs(a.inliers - b.inliers) <= 1e-12 and (a.rmse_m == b.rmse_m or abs(a.rmse_m - b.rmse_m) <= 1e-12)
+        same += torch.equal(a.relative, b.relative) and a.ok == b.ok and close
     med = {k: statistics.median(v) for k, v in times.items()}
-    return {"sequence": str(path), "registrations": len(depths) - 1, "identical": same,
+    return {"sequence": str(path), "registrations": len(depths) - 1, "identical": same, "max_pose_diff": max_diff,
             "median_ms": {k: 1000 * v for k, v in med.items()}, "ratio": med["kernel"] / med["reference"],
             "times_s": times}
 
