@@ -191,8 +191,18 @@ def icp_relative_pose(
 
         inl, rmse, failed = register(dp.numpy(), dc.numpy(), T.numpy(), (fx, fy, cx, cy), levels, iters, max_dist,
                                      min_cos, max_jump)
-        ok = not failed and inl >= min_inliers and rmse < max_dist[-1]
-        return ICPResult(T.float(), inl, rmse, bool(ok and torch.isfinite(T).all()))
+    else:
+        T, inl, rmse, failed = _register_reference(dp, dc, T, (fx, fy, cx, cy), levels, iters, max_dist, min_cos,
+                                                   max_jump)
+    ok = not failed and inl >= min_inliers and rmse < max_dist[-1]
+    return ICPResult(T.float(), float(inl), rmse, bool(ok and torch.isfinite(T).all()))
+
+
+def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_jump):
+    """The registration by tensor ops, the reference of :mod:`slam.core.odometry_kernels`: float64 depths
+    ``[H, W]``, ``T [4, 4]`` the start, ``intr`` ``(fx, fy, cx, cy)`` of the full image. Returns ``(T, inlier
+    share, RMS residual in metres, failed)``; failed: a level or a step had fewer than 50 points or matches."""
+    fx, fy, cx, cy = intr
     inl, rmse = 0.0, float("inf")
     for f, n_it, dmax in zip(levels, iters, max_dist):
         p_depth, c_depth = _downsample(dp, f), _downsample(dc, f)
@@ -202,19 +212,18 @@ def icp_relative_pose(
         vc, nc, okc = _level_points(c_depth, cam, max_jump)
         pts, pnrm = vc[okc], nc[okc]  # [P, 3] current camera frame
         if pts.shape[0] < 50 or int(okp.sum()) < 50:
-            return ICPResult(T.float(), 0.0, float("inf"), False)
+            return T, 0.0, float("inf"), True
         for _ in range(n_it):
             idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos, kernel=False)
             if idx.numel() < 50:
-                return ICPResult(T.float(), idx.numel() / max(pts.shape[0], 1), float("inf"), False)
+                return T, idx.numel() / max(pts.shape[0], 1), float("inf"), True
             xi, r = _gauss_newton_step(src, tgt, nrm)
             T = exp_se3(xi) @ T
             inl = idx.numel() / pts.shape[0]
             rmse = float(torch.sqrt((r**2).mean()))
             if float(xi.norm()) < 1e-5:
                 break
-    ok = inl >= min_inliers and rmse < max_dist[-1]
-    return ICPResult(T.float(), float(inl), rmse, bool(ok and torch.isfinite(T).all()))
+    return T, float(inl), rmse, False
 
 
 # normals averaged over this many pixels square (at the coarsest pyramid level) for the observability check: the

@@ -212,8 +212,7 @@ def register_level(pts, pnrm, vp, np_, okp, T, fx, fy, cx, cy, dmax, min_cos, n_
         _left_multiply_exp(xi, T)
         out[0] = m / P
         out[1] = np.sqrt(ss / m)
-        if np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2] + xi[3] * xi[3] + xi[4] * xi[4]
-                   + xi[5] * xi[5]) < 1e-5:  # a NaN step goes on, as in the reference
+        if np.sqrt(np.sum(xi * xi)) < 1e-5:  # a NaN step goes on, as in the reference
             break
     return False
 
