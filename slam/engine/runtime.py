@@ -109,11 +109,14 @@ def float_fingerprint() -> str:
     """16 hex digits that differ between machines whose float32 arithmetic rounds differently, for stamping seeded
     runs: a seed repeats a run exactly only where this agrees (docs/slam.md says what went wrong without it).
 
-    The sha256 of a fixed matrix product (through ``matmul`` and through ``linear``, the decoders' path) and of
-    tanh / exp / sigmoid over its result, at one torch thread (the runs' count): BLAS and vector-math kernels chosen
-    for the CPU's instruction set are where two machines' results part. It does not see a difference in numba's code
-    generation alone. Computed once per process (it sets torch's thread count for a moment, so
-    :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
+    The sha256 of torch's CPU capability (the instruction set ATen's own kernels were dispatched for: ``AVX512``,
+    ``AVX2``, ...), of a fixed matrix product (through ``matmul`` and through ``linear``, the decoders' path) and of
+    tanh / exp / sigmoid over its result, at one torch thread (the runs' count): BLAS and vector kernels chosen for
+    the CPU's instruction set are where two machines' results part. The capability is in it because the products
+    alone did not see it: one machine run with ``ATEN_CPU_CAPABILITY=avx2`` and with its native AVX512 gave the same
+    products and different trajectories (docs/slam.md, "Pair runs only from one machine"). It does not see a
+    difference in numba's code generation alone. Computed once per process (it sets torch's thread count for a
+    moment, so :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
     """
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -123,7 +126,8 @@ def float_fingerprint() -> str:
         b = torch.cos(0.11 * i[: 64 * 48]).reshape(64, 48)
         y = a @ b
         parts = (y, torch.tanh(y), torch.exp(-y.abs()), torch.sigmoid(y), torch.nn.functional.linear(a, b.T))
-        digest = hashlib.sha256(b"".join(t.contiguous().numpy().tobytes() for t in parts)).hexdigest()
+        capability = torch.backends.cpu.get_cpu_capability().encode()
+        digest = hashlib.sha256(capability + b"".join(t.contiguous().numpy().tobytes() for t in parts)).hexdigest()
     finally:
         torch.set_num_threads(threads)
     return digest[:16]

@@ -182,6 +182,26 @@ def test_the_fingerprint_is_stable_in_a_process():
     assert float_fingerprint() == f  # recomputed: the same digits
 
 
+def test_the_fingerprint_tells_apart_torchs_kernels_for_another_instruction_set():
+    """ATen's kernels for another instruction set round differently (a run's trajectory changed with
+    ATEN_CPU_CAPABILITY=avx2 on an AVX512 machine) though the fingerprint's products did not: the fingerprint must
+    change with them. On an AVX512 machine the other set is AVX2 (same products); elsewhere the portable kernels."""
+    import os
+    import subprocess
+    import sys
+
+    import torch
+
+    from slam.engine.runtime import float_fingerprint
+
+    other = "avx2" if torch.backends.cpu.get_cpu_capability() == "AVX512" else "default"
+    code = ("import torch; from slam.engine.runtime import float_fingerprint; "
+            "print(torch.backends.cpu.get_cpu_capability(), float_fingerprint())")
+    out = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, ATEN_CPU_CAPABILITY=other),
+                         capture_output=True, text=True, check=True).stdout.split()
+    assert out[0] != torch.backends.cpu.get_cpu_capability() and out[1] != float_fingerprint()
+
+
 def test_a_file_compared_with_itself_needs_no_machine_note(tmp_path, capsys):
     a = _slam_compare(tmp_path / "a", {"eslam": {0: 2.2, 1: 2.3}, "lrslam": {0: 2.1, 1: 2.4}})
     assert main(["compare", str(a), "--representations", "eslam", "lrslam"]) == 0
