@@ -114,9 +114,9 @@ def float_fingerprint() -> str:
     tanh / exp / sigmoid over its result, at one torch thread (the runs' count): BLAS and vector kernels chosen for
     the CPU's instruction set are where two machines' results part. The capability is in it because the products
     alone did not see it: one machine run with ``ATEN_CPU_CAPABILITY=avx2`` and with its native AVX512 gave the same
-    products and different trajectories (docs/slam.md, "Pair runs only from one machine"). It does not see a
-    difference in numba's code generation alone. Computed once per process (it sets torch's thread count for a
-    moment, so :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
+    products and different trajectories (docs/slam.md, "Measured (2026-12-02, 2 CPU cores", where runs are paired
+    by machine). It does not see a difference in numba's code generation alone. Computed once per process (it sets
+    torch's thread count for a moment, so :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
     """
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
