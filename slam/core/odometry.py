@@ -87,33 +87,13 @@ def _level_points(depth: torch.Tensor, cam: tuple[float, float, float, float],
 
 
 def _associate(pts: torch.Tensor, pnrm: torch.Tensor, T: torch.Tensor, prev: tuple, cam: tuple, dmax: float,
-               min_cos: float, kernel: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Projective data association: the current frame's points ``pts`` / normals ``pnrm`` ``[P, 3]`` (float64,
-    CPU), moved by ``T``, matched with the previous level's ``prev = (points, normals, valid)`` at the pixel they
-    project to. ``kernel``: one numba pass (:mod:`slam.core.odometry_kernels`, the same matches bit for bit);
-    False: the tensor-op reference.
+               min_cos: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Projective data association by tensor ops (the reference of :func:`slam.core.odometry_kernels.associate`):
+    the current frame's points ``pts`` / normals ``pnrm`` ``[P, 3]`` (float64, CPU), moved by ``T``, matched with
+    the previous level's ``prev = (points, normals, valid)`` at the pixel they project to.
 
     Returns ``(idx, tgt, nrm, src)``: indices into ``pts`` of the kept matches, their target points and normals,
     and the moved points (previous camera frame)."""
-    if not kernel:
-        return _associate_reference(pts, pnrm, T, prev, cam, dmax, min_cos)
-    from slam.core.odometry_kernels import associate  # numba compiles (or loads from its cache) on first use only
-
-    vp, np_, okp = prev
-    q = pts @ T[:3, :3].T + T[:3, 3]  # as the reference: the moved points and normals by the same matmuls
-    qn = pnrm @ T[:3, :3].T
-    P = q.shape[0]
-    idx, src, tgt, nrm = (torch.empty(P, dtype=torch.int64), torch.empty(P, 3, dtype=q.dtype),
-                          torch.empty(P, 3, dtype=q.dtype), torch.empty(P, 3, dtype=q.dtype))
-    m = associate(q.numpy(), qn.contiguous().numpy(), vp.contiguous().numpy(), np_.contiguous().numpy(),
-                  okp.contiguous().numpy(), *(float(c) for c in cam), float(dmax), float(min_cos), idx.numpy(),
-                  src.numpy(), tgt.numpy(), nrm.numpy())
-    return idx[:m], tgt[:m], nrm[:m], src[:m]
-
-
-def _associate_reference(pts: torch.Tensor, pnrm: torch.Tensor, T: torch.Tensor, prev: tuple, cam: tuple,
-                         dmax: float, min_cos: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """:func:`_associate` as tensor ops (the reference the kernel is tested against)."""
     vp, np_, okp = prev
     lfx, lfy, lcx, lcy = cam
     H, W = okp.shape
@@ -214,7 +194,7 @@ def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_j
         if pts.shape[0] < 50 or int(okp.sum()) < 50:
             return T, 0.0, float("inf"), True
         for _ in range(n_it):
-            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos, kernel=False)
+            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos)
             if idx.numel() < 50:
                 return T, idx.numel() / max(pts.shape[0], 1), float("inf"), True
             xi, r = _gauss_newton_step(src, tgt, nrm)

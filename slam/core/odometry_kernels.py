@@ -1,22 +1,20 @@
-"""The numba kernel of depth ICP's projective data association (imported lazily by :mod:`slam.core.odometry`).
+"""Depth ICP's registration as numba kernels (imported lazily by :mod:`slam.core.odometry`, the default of
+``icp_relative_pose``; ``kernel=False`` runs the tensor-op reference there).
 
-The reference (``slam.core.odometry._associate_reference``) is some twenty tensor ops over the current frame's
-points, each a dispatch and a pass over memory, run at every Gauss-Newton step of both pyramid levels: 0.9 ms a
-step of a 33-46 ms registration at 184 x 248 (docs/benchmarks.md, "Depth ICP's association as one kernel"). Here one
-pass visits each point once. The arithmetic repeats the reference's in float64 and in its order (projection,
-rounding half to even, the same comparisons), and the matches come out in the reference's order, so a
-registration gives the same pose bit for bit; the moved points and normals are computed by the caller, with
-torch, as the reference does.
+:func:`register` runs the pyramid: each level's points and normals in one pass (:func:`level_points`) and the
+level's Gauss-Newton steps in one call (:func:`register_level`: move the points, associate them
+(:func:`associate`), Huber-weighted point-to-plane normal equations, a 6x6 solve, the twist's exponential). The
+tensor-op reference spent about 1 ms a step in some forty dispatches around the association (docs/benchmarks.md,
+"Depth ICP as kernels").
+
+The association repeats the reference's arithmetic (``slam.core.odometry._associate``) in float64 and in its order
+(projection, rounding half to even, the same comparisons), and its matches come out in the reference's order: the
+same matches, bit for bit, for the same moved points. The rest is the reference's formulas in float64; its sums of
+products (the moved points, the normal equations) run in another order than the reference's BLAS calls, so a pose
+can differ from the reference's in the last bits of a double, below the float32 the pose is handed on in
+(``tests/slam/core/test_odometry.py``).
 
 No ``fastmath``: a NaN must fail every comparison, as it does in the reference.
-
-The rest of a registration runs here too (:func:`register`, the default of ``icp_relative_pose``): each pyramid
-level's points and normals in one pass (:func:`level_points`) and a level's Gauss-Newton steps in one call
-(:func:`register_level`: move, associate, Huber-weighted point-to-plane normal equations, a 6x6 solve, the twist's
-exponential). The tensor-op reference spent about 1 ms a step in some forty dispatches around a 0.07 ms
-association. The arithmetic is the reference's formulas in float64; its sums of products (the normal equations,
-the moved points) run in another order than the reference's BLAS calls, so a pose can differ from the reference's
-in the last bits of a double, below the float32 the pose is handed on in (``tests/slam/core/test_odometry.py``).
 """
 
 from __future__ import annotations

@@ -92,7 +92,7 @@ def test_the_icp_kernels_give_the_references_registration(shared_data):
     # the normal equations summed in another order, so the pose agrees to the last bits of a double and the float32
     # pose handed on is the reference's; checked on real frames, from the loop's start and from 2 degrees and 3 cm off
     from slam.core import odometry
-    from slam.core.odometry_kernels import level_points
+    from slam.core.odometry_kernels import associate, level_points
 
     real = load_dataset(shared_data / "tum_fr1_rpy_0_124")
     off = _motion(2.0, 0.0, [0.03, 0.0, 0.0]).float()
@@ -128,7 +128,12 @@ def test_the_icp_kernels_give_the_references_registration(shared_data):
     pts[5::89, 2] = -pts[5::89, 2]
     pts[7::83, 0] += 50.0
     T = odometry.exp_se3(torch.tensor([0.01, -0.02, 0.005, 0.01, 0.0, -0.02], dtype=torch.float64))
-    got = odometry._associate(pts, pnrm, T, (vp, np_, okp), cam, 0.1, 0.8)
-    want = odometry._associate(pts, pnrm, T, (vp, np_, okp), cam, 0.1, 0.8, kernel=False)
-    assert 0 < got[0].numel() < pts.shape[0] - 3 * (pts.shape[0] // 100)
+    want = odometry._associate(pts, pnrm, T, (vp, np_, okp), cam, 0.1, 0.8)
+    q, qn = pts @ T[:3, :3].T + T[:3, 3], pnrm @ T[:3, :3].T  # moved as the reference moves them
+    P = q.shape[0]
+    idx, src, tgt, nrm = torch.empty(P, dtype=torch.int64), *(torch.empty(P, 3, dtype=q.dtype) for _ in range(3))
+    m = associate(q.numpy(), qn.contiguous().numpy(), vp.numpy(), np_.numpy(), okp.numpy(), *cam, 0.1, 0.8,
+                  idx.numpy(), src.numpy(), tgt.numpy(), nrm.numpy())
+    got = idx[:m], tgt[:m], nrm[:m], src[:m]
+    assert 0 < m < P - 3 * (P // 100)
     assert all(torch.equal(g, w) for g, w in zip(got, want))
