@@ -160,6 +160,9 @@ def icp_relative_pose(
     Returns:
         :class:`ICPResult`.
     """
+    if depth_prev.dim() != 2 or depth_prev.shape != depth_cur.shape:
+        raise ValueError(f"icp_relative_pose: depths must be [H, W] of one size, got {tuple(depth_prev.shape)} and "
+                         f"{tuple(depth_cur.shape)}")
     dt = torch.float64
     if levels is None:
         levels = pyramid(*depth_cur.shape)

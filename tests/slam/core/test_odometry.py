@@ -2,6 +2,7 @@
 
 import math
 
+import pytest
 import torch
 
 from slam.data import load_dataset
@@ -108,6 +109,10 @@ def test_the_icp_kernels_give_the_references_registration(shared_data):
     ref = icp_relative_pose(a, b, real.intrinsics, init=far, kernel=False)
     assert not fast.ok and not ref.ok and torch.equal(fast.relative, ref.relative)
     assert abs(fast.inliers - ref.inliers) < 1e-12 and fast.rmse_m == ref.rmse_m == float("inf")
+    # depths of two sizes are refused by name, either way
+    for kernel in (True, False):
+        with pytest.raises(ValueError, match=r"one size, got \(\d+, \d+\) and \(\d+, \d+\)"):
+            icp_relative_pose(a, b[:-2], real.intrinsics, kernel=kernel)
     # a level's points, normals and their validity, NaN depth included
     depth = torch.as_tensor(real[10].depth).double()
     depth[40, 50] = float("nan")
