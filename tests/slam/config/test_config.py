@@ -22,7 +22,8 @@ def test_the_fast_preset_is_the_cpu_preset_with_the_measured_levers():
     levers = {("tracking", "optimizer"): "gauss_newton", ("tracking", "gn_prior"): 0.03,
               ("tracking", "gn_hessian"): "first", ("tracking", "gn_iters"): 6, ("mapping", "schedule"): "by_need",
               ("mapping", "optimizer_state"): "persistent", ("rendering", "fused"): True,
-              ("rendering", "n_stratified"): 8, ("rendering", "color_cutoff"): 0.01}
+              ("rendering", "n_stratified"): 8, ("rendering", "color_cutoff"): 0.01,
+              ("mapping", "rays_without_depth"): "skip", ("mapping", "need_max_gap"): 4}
     for (group, key), value in levers.items():
         assert fast[group][key] == value and cpu[group][key] != value, (group, key)
         fast[group][key] = cpu[group][key]
