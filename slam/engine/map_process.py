@@ -1,9 +1,9 @@
 """The mapper in its own process (``mapper_process: true`` with ``parallel: true``; ESLAM's design).
 
 In parallel mode the tracker and the mapper are two threads of one Python process, and every torch op and numba
-kernel call takes the interpreter's lock: a tracking call beside a mapping thread took 8 % longer than alone and a
-mapping call beside a tracking thread 18 % longer, against -6 % and +7 % beside a separate process
-(``benchmarks/thread_contention.py``; in the loop the frame time did not measurably change, docs/benchmarks.md).
+kernel call takes the interpreter's lock. At ``tum/fr1_rpy-cpu-fast`` (small, many ops) a warm mapping call beside a
+tracking thread took 65 % longer than alone and a tracking call beside a mapping thread 59 %, against 0 % and 12 %
+beside a separate process (``benchmarks/thread_contention.py``, docs/benchmarks.md).
 Here the mapping calls run in a child process instead, on a replica of the map and the keyframes that the parent
 keeps in step:
 
@@ -11,17 +11,20 @@ keeps in step:
   moments (``mapping.optimizer_state: persistent``) as they are then (a fresh run's initial map, or a resumed
   run's);
 * every call sends the job (frame, pose, flags) and gets back what :class:`slam.engine.map_worker.MapWorker` needs:
-  the result, the map the call left (the snapshot the thread mode takes too), the random stream's state, the
-  keyframes' poses (BA refines them) and the carried moments (None per call; a few MB when carried); the parent
-  then makes the same keyframe store change the child made, so both stores hold the same keyframes with the same
-  poses, its own map becomes the child's and its moments the child's;
+  the result, the map the call left (the snapshot the thread mode takes too), the random stream's state and the
+  keyframes' poses (BA refines them); the parent then makes the same keyframe store change the child made, so both
+  stores hold the same keyframes with the same poses, and its own map becomes the child's. The carried moments
+  (twice the map's size) stay in the child until a checkpoint asks for them (:meth:`MapProcess.moments`);
 * a growth of the map's box is sent between calls and applied to the replica by the same samples (the carried
   moments reset on both sides).
 
 The results are the thread mode's, bit for bit (same code, same inputs, same order; tested), so everything the
 schedule promises holds. Messages are pickled by value over a pipe (no shared-memory handles to leak on long runs;
-a map is a few MB). The child ignores SIGINT: a Ctrl-C is the parent's to handle (it finishes the frame and waits
-for the call in flight before saving). If the child fails, the call's ``result()`` raises with its traceback.
+a map is a few MB), its tensors as numpy arrays (:func:`_pack`). The child is spawned when the worker is made and
+its imports are done before the first frame; while it runs the first frame's warm-up, the parent loads the tracker's
+kernels (:func:`slam.engine.tracking.rehearse`). The child ignores SIGINT: a Ctrl-C is the parent's to handle (it
+finishes the frame and waits for the call in flight before saving). If the child fails, the call's ``result()``
+raises with its traceback.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ def _serve(conn, cfg, intr, device: str) -> None:
     set_threads(cfg.threads)
     if cfg.keep_freed_memory:
         keep_freed_memory()
+    conn.send_bytes(pickle.dumps(("hello", None)))  # imported: the parent's loop need not wait for that
     scene = keyframes = None
     moments = MapMoments()
     gen = torch.Generator()
@@ -81,23 +85,43 @@ def _serve(conn, cfg, intr, device: str) -> None:
                 apply_growth(scene, body)
                 moments.reset()
                 reply = ("grown", None)
+            elif kind == "moments":  # asked for by a checkpoint, after the calls sent before it
+                state = moments.cpu_state()
+                reply = ("moments", None if state is None else {n: _pack(st) for n, st in state.items()})
             else:  # "map"
                 k, color, depth, pose, first, keyframe = body
+                color, depth = torch.from_numpy(color), torch.from_numpy(depth)
                 t0 = time.perf_counter()
                 res = map_frame(scene, k, color.to(device), depth.to(device), pose.to(device), intr, keyframes, cfg,
                                 gen, first=first, moments=moments)
                 keep_keyframe(keyframes, k, color, depth, pose, res, keyframe)
                 seconds = time.perf_counter() - t0
                 res.pose = res.pose.cpu()
-                snap = {name: t.detach().cpu().clone() for name, t in scene.state_dict().items()}
-                # the carried moments come back with the map they belong to (None unless mapping.optimizer_state:
-                # persistent), so the parent's mirror can checkpoint them
-                reply = ("done", {"result": res, "seconds": seconds, "snapshot": snap, "gen": gen.get_state(),
-                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7),
-                                  "moments": moments.cpu_state()})
+                reply = ("done", {"result": res, "seconds": seconds, "snapshot": _pack(scene.state_dict()),
+                                  "gen": gen.get_state(),
+                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7)})
         except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
             reply = ("error", traceback.format_exc())
         conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _pack(tensors: dict) -> dict:
+    """``{name: tensor}`` -> ``{name: numpy array}``, CPU copies: a numpy array pickles as its raw bytes, a torch
+    tensor through ``torch.save`` (a map's snapshot took 3.5 ms to pickle and 3.2 to unpickle as tensors, 1 and
+    0.1-0.6 as arrays). A dtype numpy lacks stays a tensor."""
+    out = {}
+    for name, t in tensors.items():
+        t = t.detach().cpu()
+        try:
+            out[name] = t.numpy().copy()
+        except TypeError:
+            out[name] = t.clone()
+    return out
+
+
+def unpack_state(arrays: dict) -> dict:
+    """The inverse of :func:`_pack`: ``{name: tensor}`` (sharing the arrays' memory)."""
+    return {name: torch.from_numpy(a) if not isinstance(a, torch.Tensor) else a for name, a in arrays.items()}
 
 
 class _Call:
@@ -124,17 +148,22 @@ class MapProcess:
     def __init__(self, cfg, intrinsics, device, arrived):
         self.cfg, self.intr, self.device, self.arrived = cfg, intrinsics, str(device), arrived
         self._proc = self._conn = self._reader = self._writer = None
+        self._replica = False
         self._replies: queue.Queue = queue.Queue()
         self._outbox: queue.Queue = queue.Queue()
         self._waiting: list[_Call] = []
 
     @property
     def started(self) -> bool:
-        return self._proc is not None
+        """Whether the child holds a replica (:meth:`start`)."""
+        return self._proc is not None and self._replica
 
-    def start(self, scene, keyframes, generator: torch.Generator, moments: MapMoments | None = None) -> None:
-        """Start the child with a replica of ``scene``, ``keyframes``, ``generator`` and the carried Adam
-        ``moments`` as they are now."""
+    def spawn(self) -> None:
+        """Start the child process and wait until it has imported what it runs (about 2 s; the worker does this
+        when it is made, so the loop's first frames do not wait for it, as they do not wait for the imports of
+        the thread mode). No-op when it runs already."""
+        if self._proc is not None:
+            return
         ctx = multiprocessing.get_context("spawn")  # a fork would copy the parent's threads' locks mid-use
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_serve, args=(child, self.cfg, self.intr, self.device),
@@ -151,18 +180,37 @@ class MapProcess:
                                         daemon=True)
         self._reader.start()
         self._writer.start()
+        self._replica = False
+        kind, _ = self._recv()
+        if kind != "hello":
+            raise RuntimeError(f"the mapping process answered {kind!r} where 'hello' was due")
+
+    def start(self, scene, keyframes, generator: torch.Generator, moments: MapMoments | None = None) -> None:
+        """Give the child (spawned first if needed) a replica of ``scene``, ``keyframes``, ``generator`` and the
+        carried Adam ``moments`` as they are now."""
+        self.spawn()
         kfs = [(kf.index, *kf.images(), kf.pose.clone()) for kf in keyframes.frames]
         state = {name: t.detach().cpu() for name, t in scene.state_dict().items()}
         self._send("init", {"aabb": scene.aabb.detach().cpu(), "scene": state, "keyframes": kfs,
                             "gen": generator.get_state(), "moments": (moments or MapMoments()).cpu_state()})
         self._expect("ready")
+        self._replica = True
 
     def submit(self, job) -> _Call:
         """Queue a mapping call (a :class:`slam.engine.map_worker.MapJob`; its images travel on the CPU)."""
         call = _Call(self, job)
-        self._send("map", (job.k, job.color.cpu(), job.depth.cpu(), job.pose.cpu(), job.first, job.keyframe))
+        images = _pack({"color": job.color, "depth": job.depth})
+        self._send("map", (job.k, images["color"], images["depth"], job.pose.cpu(), job.first, job.keyframe))
         self._waiting.append(call)
         return call
+
+    def moments(self) -> dict | None:
+        """The carried Adam moments the child holds after every call sent so far (its ``MapMoments.state``, CPU
+        tensors; None: none carried). Asked for by checkpoints only: they are as large as the map twice over, and
+        sending them with every call's map cost the loop more than the map itself."""
+        self._send("moments", None)
+        body = self._expect("moments")
+        return None if body is None else {name: unpack_state(st) for name, st in body.items()}
 
     def grow(self, pads) -> None:
         """Grow the replica (every call submitted before has finished: the worker waited)."""
@@ -184,6 +232,7 @@ class MapProcess:
         self._reader.join(timeout=5)
         self._proc = self._conn = self._reader = self._writer = None
         self._waiting = []
+        self._replica = False
 
     # ------------------------------------------------------------------------------------------------- pipe
     def _send(self, kind: str, body) -> None:
@@ -217,12 +266,14 @@ class MapProcess:
             raise RuntimeError(f"the mapping process failed:\n{body}")
         return kind, body
 
-    def _expect(self, what: str) -> None:
+    def _expect(self, what: str):
+        """Wait for the reply ``what`` (to the message just sent) and return its body."""
         while self._waiting:  # replies come in order: calls sent before this message answer first
             self._receive()
-        kind, _ = self._recv()
+        kind, body = self._recv()
         if kind != what:
             raise RuntimeError(f"the mapping process answered {kind!r} where {what!r} was due")
+        return body
 
     def _receive(self) -> None:
         call = self._waiting[0]

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import torch
 
-from slam.engine.map_process import MapProcess
+from slam.engine.map_process import MapProcess, unpack_state
 from slam.engine.mapper import MapMoments, MapResult, keep_keyframe, map_frame
 from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
 
@@ -84,6 +84,8 @@ class MapWorker:
         self.track_scene = copy.deepcopy(scene) if parallel else scene
         self.process = MapProcess(cfg, intrinsics, scene.aabb.device, self._arrived) if (
             parallel and cfg.mapper_process) else None
+        if self.process is not None:
+            self.process.spawn()
         self._pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map")
                       if parallel and self.process is None else None)
         self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
@@ -122,13 +124,13 @@ class MapWorker:
         for kf, pose in zip(self.keyframes.frames, reply["poses"]):
             kf.pose = pose.clone()
         self.gen.set_state(reply["gen"])
-        self.moments.state = reply["moments"]
+        snapshot = unpack_state(reply["snapshot"])
         with torch.no_grad():
-            self.scene.load_state_dict(reply["snapshot"])
+            self.scene.load_state_dict(snapshot)
         self.snapshot_s += time.perf_counter() - t0
         self.map_s += reply["seconds"]
         self.calls += 1
-        return MapDone(job, res, reply["seconds"], reply["snapshot"])
+        return MapDone(job, res, reply["seconds"], snapshot)
 
     def submit(self, job: MapJob) -> None:
         """Queue a call (run it now, in sequential mode)."""
@@ -222,6 +224,8 @@ class MapWorker:
                                        "skipped": int(done.result.skipped)},
                             "snapshot": done.snapshot})
         track = ({k: v.detach().cpu() for k, v in self.track_scene.state_dict().items()} if self.parallel else None)
+        if self.process is not None and self.process.started:  # the child holds them (sent on request only)
+            self.moments.state = self.process.moments()
         return {"pending": pending, "applied_any": bool(self._applied_any), "track_scene": track,
                 "moments": self.moments.cpu_state()}
 

@@ -37,7 +37,7 @@ from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_fr
 from slam.engine.schedule import mapping_due
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
-from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
+from slam.engine.tracking import Timeline, predict, rehearse, track_with_recovery, track_without_depth
 from slam.engine.tracking_guard import TrackingGuard
 from slam.engine.view import KeyframeSnapshot, RunView
 from slam.model.growth import fit_to_state
@@ -180,6 +180,9 @@ class SLAM:
         self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first,
                                   keyframe=first or k % cfg.mapping.keyframe_every == 0))
         st.initialized = True
+        if first and self.mapper.process is not None:  # the warm-up runs in the child: load the tracker's kernels
+            rehearse(TrackInput(self.mapper.track_scene, frame.color, frame.depth, self.intr, cfg, self.gen,
+                                self.guard), st.est[-1])
         return True
 
     def _grow(self, k: int, depth: torch.Tensor) -> None:

@@ -15,8 +15,8 @@ def _traj(out) -> str:
     return (out / "trajectory.txt").read_text()
 
 
-# with carried Adam moments (mapping.optimizer_state: persistent) the child holds them, sends them back with each
-# call's map, starts a resumed run from the checkpoint's and resets them with a growth, as the thread does
+# with carried Adam moments (mapping.optimizer_state: persistent) the child holds them, sends them back when a
+# checkpoint asks, starts a resumed run from the checkpoint's and resets them with a growth, as the thread does
 @pytest.mark.parametrize("state", ["per_call", "persistent"])
 def test_a_mapper_process_gives_the_thread_modes_run_through_a_growth_a_stop_and_a_resume(tiny_seq, tmp_path,
                                                                                            state):
@@ -58,7 +58,7 @@ def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline
     sends back are those of the same call run inline from the same state, bit for bit."""
     import copy
 
-    from slam.engine.map_process import MapProcess
+    from slam.engine.map_process import MapProcess, unpack_state
     from slam.engine.map_worker import MapJob
     from slam.engine.mapper import MapMoments, map_frame
     from slam.engine.setup import load_data
@@ -82,13 +82,16 @@ def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline
         try:
             proc.start(s.scene, s.keyframes, s.map_gen, MapMoments(state))
             reply = proc.submit(MapJob(3, frame.color, frame.depth, s.state.est[-1], False, True)).result()
+            assert "moments" not in reply  # a call's reply: the map only, the moments on request
+            carried = proc.moments()
         finally:
             proc.close()
         assert torch.equal(reply["result"].pose, inline.pose)
         for name, st in moments.state.items():
-            assert float(st["step"]) == 9.0 and all(torch.equal(v, reply["moments"][name][k]) for k, v in st.items())
+            assert float(st["step"]) == 9.0 and all(torch.equal(v, carried[name][k]) for k, v in st.items())
+        snapshot = unpack_state(reply["snapshot"])
         for name, t in scene.state_dict().items():
-            assert torch.equal(t, reply["snapshot"][name]), name
+            assert torch.equal(t, snapshot[name]), name
     finally:
         s.close()
 
@@ -100,7 +103,8 @@ def test_a_dead_mapper_process_is_an_error_that_names_it(tiny_seq):
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true", "mapper_process=true"])
     s = SLAM(cfg, load_data(cfg))
     try:
-        s.step(0)  # the warm-up: the child starts
+        assert s.mapper.process._proc.is_alive()  # spawned (and its imports done) before the first frame
+        s.step(0)  # the warm-up: the child gets its replica
         s.mapper.wait_idle()
         s.mapper.process._proc.kill()
         with pytest.raises(RuntimeError, match="mapping process ended unexpectedly"):
