@@ -243,6 +243,9 @@ class Config:
     # ours: with parallel, the mapping calls run in a child process instead of a thread (slam.engine.map_process):
     # the same results; the two no longer share Python's interpreter lock
     mapper_process: bool = False
+    # ours: load the fused kernels before the first frame, by a throwaway mapping and tracking call
+    # (slam.engine.rehearsal); the same results, the time reported as preload_s instead of in the first frames
+    preload_kernels: bool = True
     checkpoint_every: int = num(0, **NONNEG)  # frames between checkpoints (0: by time, checkpoint_interval_s)
     checkpoint_interval_s: float = num(60.0, **POSITIVE)  # at most this much work is lost (checkpoint_every: 0)
     representation: str = choice("lrslam", REPRESENTATIONS)

@@ -44,8 +44,9 @@ from slam.engine.mapper import MapMoments
 __all__ = ["MapProcess"]
 
 
-def _serve(conn, cfg, intr, device: str) -> None:
-    """The child: builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
+def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
+    """The child: rehearses its calls (``rehearsal``: ``(aabb, color, depth, pose)``, :mod:`slam.engine.rehearsal`),
+    builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     from slam.engine.keyframes import Keyframe, KeyframeStore
     from slam.engine.mapper import keep_keyframe, map_frame
@@ -56,7 +57,12 @@ def _serve(conn, cfg, intr, device: str) -> None:
     set_threads(cfg.threads)
     if cfg.keep_freed_memory:
         keep_freed_memory()
-    conn.send_bytes(pickle.dumps(("hello", None)))  # imported: the parent's loop need not wait for that
+    if rehearsal is not None:
+        from slam.engine.rehearsal import rehearse_mapping
+
+        aabb, *frame = rehearsal
+        rehearse_mapping(SceneModel(cfg, aabb).to(device), cfg, intr, *(t.to(device) for t in frame), own=True)
+    conn.send_bytes(pickle.dumps(("hello", None)))  # imported (and rehearsed): the loop need not wait for that
     scene = keyframes = None
     moments = MapMoments()
     gen = torch.Generator()
@@ -148,7 +154,7 @@ class MapProcess:
     def __init__(self, cfg, intrinsics, device, arrived):
         self.cfg, self.intr, self.device, self.arrived = cfg, intrinsics, str(device), arrived
         self._proc = self._conn = self._reader = self._writer = None
-        self._replica = False
+        self._replica = self._hello = False
         self._replies: queue.Queue = queue.Queue()
         self._outbox: queue.Queue = queue.Queue()
         self._waiting: list[_Call] = []
@@ -158,15 +164,16 @@ class MapProcess:
         """Whether the child holds a replica (:meth:`start`)."""
         return self._proc is not None and self._replica
 
-    def spawn(self) -> None:
-        """Start the child process and wait until it has imported what it runs (about 2 s; the worker does this
-        when it is made, so the loop's first frames do not wait for it, as they do not wait for the imports of
-        the thread mode). No-op when it runs already."""
+    def spawn(self, rehearsal: tuple | None = None) -> None:
+        """Start the child process (no-op when it runs already); it imports what it runs (about 2 s) and rehearses
+        its calls on ``rehearsal`` ``(aabb, color, depth, pose)`` (CPU tensors; None: no rehearsal) while the
+        parent goes on, until :meth:`ready`. The worker does this when it is made, so the loop's first frames do
+        not wait for it, as they do not wait for the imports of the thread mode."""
         if self._proc is not None:
             return
         ctx = multiprocessing.get_context("spawn")  # a fork would copy the parent's threads' locks mid-use
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child, self.cfg, self.intr, self.device),
+        self._proc = ctx.Process(target=_serve, args=(child, self.cfg, self.intr, self.device, rehearsal),
                                  name="lrslam-map", daemon=True)
         self._proc.start()
         child.close()
@@ -180,15 +187,21 @@ class MapProcess:
                                         daemon=True)
         self._reader.start()
         self._writer.start()
-        self._replica = False
-        kind, _ = self._recv()
-        if kind != "hello":
-            raise RuntimeError(f"the mapping process answered {kind!r} where 'hello' was due")
+        self._replica, self._hello = False, False
+
+    def ready(self) -> None:
+        """Wait until the spawned child has imported its modules and rehearsed its calls."""
+        if self._proc is not None and not self._hello:
+            kind, _ = self._recv()
+            if kind != "hello":
+                raise RuntimeError(f"the mapping process answered {kind!r} where 'hello' was due")
+            self._hello = True
 
     def start(self, scene, keyframes, generator: torch.Generator, moments: MapMoments | None = None) -> None:
         """Give the child (spawned first if needed) a replica of ``scene``, ``keyframes``, ``generator`` and the
         carried Adam ``moments`` as they are now."""
         self.spawn()
+        self.ready()
         kfs = [(kf.index, *kf.images(), kf.pose.clone()) for kf in keyframes.frames]
         state = {name: t.detach().cpu() for name, t in scene.state_dict().items()}
         self._send("init", {"aabb": scene.aabb.detach().cpu(), "scene": state, "keyframes": kfs,
@@ -232,7 +245,7 @@ class MapProcess:
         self._reader.join(timeout=5)
         self._proc = self._conn = self._reader = self._writer = None
         self._waiting = []
-        self._replica = False
+        self._replica = self._hello = False
 
     # ------------------------------------------------------------------------------------------------- pipe
     def _send(self, kind: str, body) -> None:

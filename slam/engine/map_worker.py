@@ -71,9 +71,12 @@ class MapWorker:
         generator: CPU generator for the mapper's pixel and window draws.
         parallel: run calls beside the tracker (else inline): on a worker thread, or with ``cfg.mapper_process`` in
             a child process.
+        rehearsal: ``(color, depth, pose)`` of a frame the child process rehearses its calls on before
+            :meth:`ready` returns (``preload_kernels``, :mod:`slam.engine.rehearsal`); None: no rehearsal.
     """
 
-    def __init__(self, scene, keyframes, cfg, intrinsics, generator: torch.Generator, parallel: bool):
+    def __init__(self, scene, keyframes, cfg, intrinsics, generator: torch.Generator, parallel: bool,
+                 rehearsal: tuple | None = None):
         self.scene = scene
         self.keyframes = keyframes
         self.cfg = cfg
@@ -85,7 +88,8 @@ class MapWorker:
         self.process = MapProcess(cfg, intrinsics, scene.aabb.device, self._arrived) if (
             parallel and cfg.mapper_process) else None
         if self.process is not None:
-            self.process.spawn()
+            self.process.spawn(None if rehearsal is None else (scene.aabb.detach().cpu(),
+                                                                *(t.detach().cpu() for t in rehearsal)))
         self._pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map")
                       if parallel and self.process is None else None)
         self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
@@ -96,6 +100,11 @@ class MapWorker:
         self.map_s = 0.0  # wall time of the mapping calls themselves (wherever they ran)
         self.calls = 0
         self.moments = MapMoments()  # the map's Adam state between calls (mapping.optimizer_state: persistent)
+
+    def ready(self) -> None:
+        """Wait until the mapper process (if any) has started and rehearsed its calls (``rehearsal``)."""
+        if self.process is not None:
+            self.process.ready()
 
     # ---------------------------------------------------------------------------------------------- calls
     def _run(self, job: MapJob) -> MapDone:

@@ -8,11 +8,10 @@ Frames are read ahead on a background thread (:mod:`slam.engine.frames`); mappin
 effective schedule) or beside the tracker (``parallel``), both deterministic (:mod:`slam.engine.map_worker`).
 
 Robustness: a frame that cannot be read is not tracked or mapped (its pose is the prediction: constant velocity
-between two trusted poses, or the previous pose); a frame without valid depth is tracked on its colour and not
-mapped (``tracking.without_depth``); a tracking result that is not finite falls back to the
-prediction and the frame is not mapped; a mapping step whose loss or gradient is not finite is skipped, so the map
-is never written with NaNs. Each such event is logged and listed in ``metrics.json``.
-"""
+between two trusted poses, or the previous pose); a frame without valid depth is tracked on its colour and not mapped
+(``tracking.without_depth``); a tracking result that is not finite falls back to the prediction and the frame is not
+mapped; a mapping step whose loss or gradient is not finite is skipped, so the map is never written with NaNs. Each
+such event is logged and listed in ``metrics.json``."""
 
 from __future__ import annotations
 
@@ -32,12 +31,13 @@ from slam.engine.keyframes import KeyframeStore
 from slam.engine.map_worker import MapJob, MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
+from slam.engine.rehearsal import preload
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import mapping_due
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
-from slam.engine.tracking import Timeline, predict, rehearse, track_with_recovery, track_without_depth
+from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
 from slam.engine.tracking_guard import TrackingGuard
 from slam.engine.view import KeyframeSnapshot, RunView
 from slam.model.growth import fit_to_state
@@ -58,9 +58,7 @@ class SLAM:
     """
 
     def __init__(self, cfg: Config, dataset, device: torch.device | str = "cpu"):
-        self.cfg = cfg
-        self.ds = dataset
-        self.device = torch.device(device)
+        self.cfg, self.ds, self.device = cfg, dataset, torch.device(device)
         self.indices = frame_indices(len(dataset), cfg)
         set_threads(cfg.threads)
         float_fingerprint()  # taken now, before the mapper's thread runs: metrics.json records it
@@ -88,7 +86,12 @@ class SLAM:
         self.keyframes = KeyframeStore.for_mapping(cfg.mapping)
         self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
                                   ahead=cfg.data.prefetch)
-        self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel)
+        t0 = time.perf_counter()
+        frame0 = (first.color.to(self.device), first.depth.to(self.device), matrix_to_pose(self.c2w0))
+        self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel,
+                                rehearsal=frame0 if cfg.preload_kernels else None)
+        preload(self.scene, cfg, self.intr, frame0, self.mapper)  # and waits for the mapper process's own
+        self.preload_s = time.perf_counter() - t0
         self.guard = TrackingGuard(cfg.tracking)
         self.timeline = Timeline(dt=self._dt, keyframes=self._keyframes_when_idle,
                                  frame_of=lambda j: int(self.indices[j]), event=self._event)
@@ -180,9 +183,6 @@ class SLAM:
         self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first,
                                   keyframe=first or k % cfg.mapping.keyframe_every == 0))
         st.initialized = True
-        if first and self.mapper.process is not None:  # the warm-up runs in the child: load the tracker's kernels
-            rehearse(TrackInput(self.mapper.track_scene, frame.color, frame.depth, self.intr, cfg, self.gen,
-                                self.guard), st.est[-1])
         return True
 
     def _grow(self, k: int, depth: torch.Tensor) -> None:

@@ -146,14 +146,3 @@ def _color_pose(k, inp: TrackInput, st: RunState, pred, what: str, run: Timeline
     return res, res.pose, (f"tracked on colour from the {what} (colour error {start:.3g} -> {res.loss:.3g}, "
                            f"{res.iters} iterations, {100 * res.inliers:.0f} % of the pixels see the map)")
 
-
-def rehearse(inp: TrackInput, pose: torch.Tensor) -> None:
-    """Track the frame of ``inp`` against itself from ``pose`` ``[7]`` once and throw the result away: the tracker's
-    kernels (the ICP start's, the solve's) load from numba's cache now instead of in the next frame. For the mapper
-    process (``mapper_process: true``), whose child runs the first frame's warm-up meanwhile on the other core, so the
-    two loads overlap (in thread mode they would contend for the interpreter's lock instead). Its draws come from a
-    generator of its own: the run's random streams, and so its results, stay as they are."""
-    cfg = inp.cfg
-    if cfg.tracking.init == "icp":
-        icp_start(pose, inp.depth, pose, inp.depth, inp.intr, hold_pose=pose, hold=cfg.tracking.icp_hold)
-    track_frame(inp.scene, inp.color, inp.depth, inp.intr, pose, cfg, torch.Generator().manual_seed(0))
