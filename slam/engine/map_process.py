@@ -20,11 +20,10 @@ keeps in step:
 
 The results are the thread mode's, bit for bit (same code, same inputs, same order; tested), so everything the
 schedule promises holds. Messages are pickled by value over a pipe (no shared-memory handles to leak on long runs;
-a map is a few MB), its tensors as numpy arrays (:func:`_pack`). The child is spawned when the worker is made and
-its imports are done before the first frame; while it runs the first frame's warm-up, the parent loads the tracker's
-kernels (:func:`slam.engine.tracking.rehearse`). The child ignores SIGINT: a Ctrl-C is the parent's to handle (it
-finishes the frame and waits for the call in flight before saving). If the child fails, the call's ``result()``
-raises with its traceback.
+a map is a few MB), its tensors as numpy arrays (:mod:`slam.engine.wire`). The child is spawned when the worker is
+made, and it imports its modules and rehearses its calls (:mod:`slam.engine.rehearsal`) before the first frame.
+The child ignores SIGINT: a Ctrl-C is the parent's to handle (it finishes the frame and waits for the call in flight
+before saving). If the child fails, the call's ``result()`` raises with its traceback.
 """
 
 from __future__ import annotations
@@ -40,6 +39,7 @@ import traceback
 import torch
 
 from slam.engine.mapper import MapMoments
+from slam.engine.wire import pack_state, unpack_state
 
 __all__ = ["MapProcess"]
 
@@ -48,10 +48,9 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
     """The child: rehearses its calls (``rehearsal``: ``(aabb, color, depth, pose)``, :mod:`slam.engine.rehearsal`),
     builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from slam.engine.keyframes import Keyframe, KeyframeStore
     from slam.engine.mapper import keep_keyframe, map_frame
     from slam.engine.runtime import keep_freed_memory, set_threads
-    from slam.model.growth import apply_growth, fit_to_state
+    from slam.model.growth import apply_growth
     from slam.model.scene import SceneModel
 
     set_threads(cfg.threads)
@@ -75,15 +74,7 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
             return
         try:
             if kind == "init":
-                scene = SceneModel(cfg, body["aabb"]).to(device)
-                with torch.no_grad():
-                    fit_to_state(scene, body["scene"])
-                    scene.load_state_dict(body["scene"])
-                keyframes = KeyframeStore.for_mapping(cfg.mapping)
-                cap, keyframes.max_keyframes = keyframes.max_keyframes, 0  # the parent's are the ones kept
-                for k, color, depth, pose in body["keyframes"]:
-                    keyframes.add(Keyframe(k, color, depth, pose))
-                keyframes.max_keyframes = cap
+                scene, keyframes = _replica(cfg, device, body)
                 gen.set_state(body["gen"])
                 moments = MapMoments(body["moments"])
                 reply = ("ready", None)
@@ -93,7 +84,7 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
                 reply = ("grown", None)
             elif kind == "moments":  # asked for by a checkpoint, after the calls sent before it
                 state = moments.cpu_state()
-                reply = ("moments", None if state is None else {n: _pack(st) for n, st in state.items()})
+                reply = ("moments", None if state is None else {n: pack_state(st) for n, st in state.items()})
             else:  # "map"
                 k, color, depth, pose, first, keyframe = body
                 color, depth = torch.from_numpy(color), torch.from_numpy(depth)
@@ -103,7 +94,7 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
                 keep_keyframe(keyframes, k, color, depth, pose, res, keyframe)
                 seconds = time.perf_counter() - t0
                 res.pose = res.pose.cpu()
-                reply = ("done", {"result": res, "seconds": seconds, "snapshot": _pack(scene.state_dict()),
+                reply = ("done", {"result": res, "seconds": seconds, "snapshot": pack_state(scene.state_dict()),
                                   "gen": gen.get_state(),
                                   "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7)})
         except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
@@ -111,23 +102,22 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
         conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
 
 
-def _pack(tensors: dict) -> dict:
-    """``{name: tensor}`` -> ``{name: numpy array}``, CPU copies: a numpy array pickles as its raw bytes, a torch
-    tensor through ``torch.save`` (a map's snapshot took 3.5 ms to pickle and 3.2 to unpickle as tensors, 1 and
-    0.1-0.6 as arrays). A dtype numpy lacks stays a tensor."""
-    out = {}
-    for name, t in tensors.items():
-        t = t.detach().cpu()
-        try:
-            out[name] = t.numpy().copy()
-        except TypeError:
-            out[name] = t.clone()
-    return out
+def _replica(cfg, device: str, body: dict):
+    """``(scene, keyframes)``: the child's replica of the parent's map and keyframe store from an ``init`` message."""
+    from slam.engine.keyframes import Keyframe, KeyframeStore
+    from slam.model.growth import fit_to_state
+    from slam.model.scene import SceneModel
 
-
-def unpack_state(arrays: dict) -> dict:
-    """The inverse of :func:`_pack`: ``{name: tensor}`` (sharing the arrays' memory)."""
-    return {name: torch.from_numpy(a) if not isinstance(a, torch.Tensor) else a for name, a in arrays.items()}
+    scene = SceneModel(cfg, body["aabb"]).to(device)
+    with torch.no_grad():
+        fit_to_state(scene, body["scene"])
+        scene.load_state_dict(body["scene"])
+    keyframes = KeyframeStore.for_mapping(cfg.mapping)
+    cap, keyframes.max_keyframes = keyframes.max_keyframes, 0  # the parent's are the ones kept
+    for k, color, depth, pose in body["keyframes"]:
+        keyframes.add(Keyframe(k, color, depth, pose))
+    keyframes.max_keyframes = cap
+    return scene, keyframes
 
 
 class _Call:
@@ -212,7 +202,7 @@ class MapProcess:
     def submit(self, job) -> _Call:
         """Queue a mapping call (a :class:`slam.engine.map_worker.MapJob`; its images travel on the CPU)."""
         call = _Call(self, job)
-        images = _pack({"color": job.color, "depth": job.depth})
+        images = pack_state({"color": job.color, "depth": job.depth})
         self._send("map", (job.k, images["color"], images["depth"], job.pose.cpu(), job.first, job.keyframe))
         self._waiting.append(call)
         return call

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import torch
 
-from slam.engine.map_process import MapProcess, unpack_state
+from slam.engine.map_process import MapProcess
+from slam.engine.wire import unpack_state
 from slam.engine.mapper import MapMoments, MapResult, keep_keyframe, map_frame
 from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
 

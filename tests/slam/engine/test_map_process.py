@@ -58,7 +58,8 @@ def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline
     sends back are those of the same call run inline from the same state, bit for bit."""
     import copy
 
-    from slam.engine.map_process import MapProcess, unpack_state
+    from slam.engine.map_process import MapProcess
+    from slam.engine.wire import unpack_state
     from slam.engine.map_worker import MapJob
     from slam.engine.mapper import MapMoments, map_frame
     from slam.engine.setup import load_data
