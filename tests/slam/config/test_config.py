@@ -20,7 +20,7 @@ def test_the_fast_preset_is_the_cpu_preset_with_the_measured_levers():
 
     fast, cpu = asdict(load_config("tum/fr1_rpy-cpu-fast")), asdict(load_config("tum/fr1_rpy-cpu"))
     levers = {("tracking", "optimizer"): "gauss_newton", ("tracking", "gn_prior"): 0.03,
-              ("tracking", "gn_hessian"): "first", ("tracking", "gn_iters"): 6, ("mapping", "schedule"): "by_need",
+              ("tracking", "gn_hessian"): "first", ("tracking", "gn_iters"): 4, ("mapping", "schedule"): "by_need",
               ("mapping", "optimizer_state"): "persistent", ("rendering", "fused"): True,
               ("rendering", "n_stratified"): 8, ("rendering", "color_cutoff"): 0.01,
               ("mapping", "rays_without_depth"): "skip", ("mapping", "need_max_gap"): 4}
