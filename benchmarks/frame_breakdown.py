@@ -9,9 +9,12 @@ in the mapper's thread in parallel mode) -- are wrapped with timers wherever a m
 ``metrics.json`` gives the loop time and ``mapping_wait_s``. Per frame: ``icp_s``, ``tracking_s`` (the tracker
 alone, the ICP start not included), ``mapping_s`` (the mapping calls' time divided by the frames; in parallel mode
 it overlaps tracking), ``wait_s`` and ``loop_s``; medians over repeats. ``per_call_s`` averages every call,
-the first included (the first mapping call is the warm-up's ``iters_first`` iterations, and it loads the kernels:
-3.9 s at ``tum/fr1_rpy-cpu-fast``, against 0.28 s for the rest); ``median_call_after_first_s`` is the steady
-state. ``minor_faults_per_frame`` counts the
+the first included (the first mapping call is the warm-up's ``iters_first`` iterations, and with
+``preload_kernels: false`` it loads the kernels: 3.9 s at ``tum/fr1_rpy-cpu-fast``, against 0.28 s for the rest);
+``median_call_after_first_s`` is the steady state. With ``mapper_process: true`` the calls run in the child, where
+nothing is wrapped: the per-call columns are empty, and ``mapping_s`` comes from the run's ``metrics.json`` (the
+child times its calls). The tracker's and ICP's columns include the preload's rehearsal call (``preload_kernels``),
+which the frame time does not. ``minor_faults_per_frame`` counts the
 process's minor page faults (its mapper process's included), start-up and all, over the frames, and
 ``minor_faults_per_call`` those of the calling thread inside each timed function (not counted for a mapper
 process): each is a fresh page the C allocator handed out, the cost ``slam.engine.runtime.keep_freed_memory``
