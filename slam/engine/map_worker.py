@@ -258,8 +258,8 @@ class MapWorker:
             r = p["result"]
             res = MapResult(r["pose"], r["window"], r["loss"], r["ok"], r["skipped"])
             self._queue.append((p["k"], MapDone(job, res, p["seconds"], p["snapshot"])))
-        if self.process is not None:  # a child started before would hold another map: the next call starts anew
-            self.process.close()
+        if self.process is not None and self.process.started:  # its replica is another map: the next call starts anew
+            self.process.close()  # (a child spawned but not given a map yet is kept, its imports and rehearsal done)
 
     def close(self, abort: bool = False) -> None:
         """Shut the worker down; ``abort``: end a call in progress at its next iteration and do not wait for it
