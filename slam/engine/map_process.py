@@ -60,7 +60,7 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
         from slam.engine.rehearsal import rehearse_mapping
 
         aabb, *frame = rehearsal
-        rehearse_mapping(SceneModel(cfg, aabb).to(device), cfg, intr, *(t.to(device) for t in frame), own=True)
+        rehearse_mapping(SceneModel(cfg, aabb).to(device), cfg, intr, *(t.to(device) for t in frame))
     conn.send_bytes(pickle.dumps(("hello", None)))  # imported (and rehearsed): the loop need not wait for that
     scene = keyframes = None
     moments = MapMoments()

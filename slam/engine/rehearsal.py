@@ -28,14 +28,13 @@ __all__ = ["preload", "rehearse_mapping", "rehearse_tracking"]
 log = logging.getLogger(__name__)
 
 
-def rehearse_mapping(scene, cfg, intrinsics, color: torch.Tensor, depth: torch.Tensor, pose: torch.Tensor,
-                     own: bool = False) -> None:
+def rehearse_mapping(scene, cfg, intrinsics, color: torch.Tensor, depth: torch.Tensor, pose: torch.Tensor) -> None:
     """Two short mapping calls (a warm-up's, then a windowed one's) of the frame ``color`` ``[H, W, 3]`` / ``depth``
-    ``[H, W]`` (on the scene's device) from ``pose`` ``[7]``, on a copy of ``scene`` (``own``: ``scene`` is one
-    of the rehearsal's own, used as it is); everything they change is thrown away. A rehearsal that fails is
-    logged, not raised: the kernels then load in the run's first calls, which report what is wrong."""
+    ``[H, W]`` (on the scene's device) from ``pose`` ``[7]``, on a copy of ``scene``; everything they change is
+    thrown away. A rehearsal that fails is logged, not raised: the kernels then load in the run's first calls, which
+    report what is wrong."""
     try:
-        _map_twice(scene if own else copy.deepcopy(scene), cfg, intrinsics, color, depth, pose)
+        _map_twice(copy.deepcopy(scene), cfg, intrinsics, color, depth, pose)
     except Exception as exc:  # noqa: BLE001 - only a preload; the run's own calls raise with context
         log.warning("kernel preload: the rehearsed mapping call failed (%s: %s)", type(exc).__name__, exc)
 

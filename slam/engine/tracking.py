@@ -145,4 +145,3 @@ def _color_pose(k, inp: TrackInput, st: RunState, pred, what: str, run: Timeline
         return res, pred, f"colour tracking not taken ({'; '.join(why)}): {what} used"
     return res, res.pose, (f"tracked on colour from the {what} (colour error {start:.3g} -> {res.loss:.3g}, "
                            f"{res.iters} iterations, {100 * res.inliers:.0f} % of the pixels see the map)")
-
