@@ -62,14 +62,15 @@ def counting():
             totals["lookup_bwd"] += 2 * flops
         return evaluate(program, tensors, coords)
 
-    def counted_compose(u, v, rank, read_at=None):
+    def counted_compose(u, v, rank, read_at=None, rows=None):
         # every cell of the box (u.shape[1] = rank x channels); the CPU kernel composes only the cells read_at reads
         # and its backward skips the zero cells, so for a batch that reads part of the box this is an upper bound
-        flops = 2.0 * u.shape[0] * v.shape[0] * u.shape[1]
+        n_a, n_b = (u.shape[0], v.shape[0]) if rows is None else (rows[0][1] - rows[0][0], rows[1][1] - rows[1][0])
+        flops = 2.0 * n_a * n_b * u.shape[1]
         totals["compose_fwd"] += flops
         if differentiable(u, v):
             totals["compose_bwd"] += 2 * flops
-        return compose(u, v, rank, read_at=read_at)
+        return compose(u, v, rank, read_at=read_at, rows=rows)
 
     field_mod.evaluate, six_mod.compose_plane = counted_evaluate, counted_compose
     try:

@@ -70,18 +70,27 @@ def interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
 FUSED_COMPOSE_MAX_RANK = 16
 
 
-def compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int, read_at: torch.Tensor | None = None) -> torch.Tensor:
+def compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int, read_at: torch.Tensor | None = None,
+                  rows: tuple[tuple[int, int], tuple[int, int]] | None = None) -> torch.Tensor:
     """Rank-k plane from two line factors: ``u [n_a, k*C]``, ``v [n_b, k*C]`` -> ``[n_a, n_b, C]``,
     ``P[a, b, c] = sum_r u[a, r*C + c] v[b, r*C + c]`` (rank-major, channel-minor factors).
 
     The fused kernel where :func:`tdfields.kernels.use_fused` allows it and ``rank`` is at most
     :data:`FUSED_COMPOSE_MAX_RANK`, else :func:`tdfields.program.compose_plane_reference` (``torch.einsum``).
 
-    ``read_at`` (``[N, 2]`` continuous indices into the plane, clamped to it; not differentiated) says where the
-    plane will be interpolated: the fused kernel then composes only the cells bilinear interpolation there reads
+    ``rows`` (``((a0, a1), (b0, b1))``, half-open) composes the sub-plane of rows ``u[a0:a1]`` and ``v[b0:b1]``
+    (``[a1 - a0, b1 - b0, C]``): the same values as composing the slices, and the gradients reach ``u`` and ``v``
+    whole, on the fused path without the two slicing steps in the autograd graph (each of which allocates and fills
+    a factor-sized gradient of its own).
+
+    ``read_at`` (``[N, 2]`` continuous indices into the (sub-)plane, clamped to it; not differentiated) says where
+    the plane will be interpolated: the fused kernel then composes only the cells bilinear interpolation there reads
     and leaves the others 0 (the reference composes every cell). Interpolating the result at those points gives
     the same values either way, bit for bit on the fused path; read it nowhere else.
     """
     if rank <= FUSED_COMPOSE_MAX_RANK and kernels.use_fused(u, v):
-        return kernels.fused_compose_plane(u, v, rank, read_at)
+        return kernels.fused_compose_plane(u, v, rank, read_at, rows)
+    if rows is not None:
+        (a0, a1), (b0, b1) = rows
+        u, v = u[a0:a1], v[b0:b1]
     return compose_plane_reference(u, v, rank)

@@ -150,10 +150,10 @@ class SixAxis(Field):
         read = shifted.detach()[0]
         planes = []
         for plane, (a, b) in _PLANES.items():
-            u = self.factors[f"{plane}_{_AXIS[a]}"][lo[a]: hi[a] + 1]
-            v = self.factors[f"{plane}_{_AXIS[b]}"][lo[b]: hi[b] + 1]
+            u, v = self.factors[f"{plane}_{_AXIS[a]}"], self.factors[f"{plane}_{_AXIS[b]}"]
             # only the cells this plan's points read are composed (where the kernel does): a fifth to a third
-            planes.append(compose_plane(u, v, self.rank, read_at=read[:, [a, b]]))
+            planes.append(compose_plane(u, v, self.rank, read_at=read[:, [a, b]],
+                                        rows=((lo[a], hi[a] + 1), (lo[b], hi[b] + 1))))
         program = single(list(_PLANES.values()), _PLANE_PROGRAM_TERMS, [1, 1, 1], self.channels)
         return Plan(program, tuple(planes), shifted)
 

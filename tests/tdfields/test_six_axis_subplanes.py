@@ -29,8 +29,11 @@ def test_subplanes_match_the_factor_path(monkeypatch, backend, region):
         x = torch.rand(800, 3, dtype=torch.float64) * torch.tensor([2.0, 1.0, 1.5])
     shapes = []
     compose = six_axis_module.compose_plane
-    monkeypatch.setattr(six_axis_module, "compose_plane", lambda u, v, k, read_at=None: shapes.append(
-        (u.shape[0], v.shape[0])) or compose(u, v, k, read_at=read_at))
+    def sub_plane(u, v, rows):
+        return (u.shape[0], v.shape[0]) if rows is None else (rows[0][1] - rows[0][0], rows[1][1] - rows[1][0])
+
+    monkeypatch.setattr(six_axis_module, "compose_plane", lambda u, v, k, read_at=None, rows=None: shapes.append(
+        sub_plane(u, v, rows)) or compose(u, v, k, read_at=read_at, rows=rows))
     results = []
     for strategy in ("planes", "factors"):
         f = _field(strategy)
@@ -64,7 +67,8 @@ def test_the_kernel_composes_only_the_cells_the_points_read(monkeypatch):
         y = f(x.clone().requires_grad_())
         grads = torch.autograd.grad(y.square().sum(), list(f.parameters()))
         compose = six_axis_module.compose_plane
-        monkeypatch.setattr(six_axis_module, "compose_plane", lambda u, v, k, read_at=None: compose(u, v, k))
+        monkeypatch.setattr(six_axis_module, "compose_plane",
+                            lambda u, v, k, read_at=None, rows=None: compose(u, v, k, rows=rows))
         assert all(not (p == 0).all(-1).any() for p in tdfields.plan(f, x).tensors)
         y_full = f(x.clone().requires_grad_())
         grads_full = torch.autograd.grad(y_full.square().sum(), list(f.parameters()))

@@ -140,8 +140,10 @@ def _live_cells(read_at: torch.Tensor | None, n_a: int, n_b: int) -> np.ndarray 
 
 class NumbaCompose(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, u, v, rank, read_at=None):
-        uc, vc = u.detach().contiguous(), v.detach().contiguous()
+    def forward(ctx, u, v, rank, read_at=None, rows=None):
+        (a0, a1), (b0, b1) = rows if rows is not None else ((0, u.shape[0]), (0, v.shape[0]))
+        # row ranges of contiguous factors are contiguous views: nothing is copied for a sub-plane
+        uc, vc = u.detach()[a0:a1].contiguous(), v.detach()[b0:b1].contiguous()
         channels = uc.shape[1] // rank
         plane = torch.empty(uc.shape[0], vc.shape[0], channels, dtype=uc.dtype)
         mod = compose_kernels(rank, channels, _dtype_name(uc.dtype))
@@ -153,6 +155,7 @@ class NumbaCompose(torch.autograd.Function):
              for a, b in split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))])
         ctx.save_for_backward(uc, vc)
         ctx.rank = rank
+        ctx.rows = None if rows is None else (a0, b0, tuple(u.shape), tuple(v.shape))
         return plane
 
     @staticmethod
@@ -164,25 +167,45 @@ class NumbaCompose(torch.autograd.Function):
             mod = compose_kernels(ctx.rank, gp.shape[-1], _dtype_name(uc.dtype))
             flat = gp.view(-1, gp.shape[-1]).numpy()
             ranges = split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))
-            gu = torch.empty_like(uc) if want_u else torch.zeros((1, 1), dtype=uc.dtype)
-            gvs = [torch.zeros_like(vc) if want_v else torch.zeros((1, 1), dtype=uc.dtype) for _ in ranges]
+            full_u = full_v = None
+            if ctx.rows is None:
+                gu = torch.empty_like(uc) if want_u else torch.zeros((1, 1), dtype=uc.dtype)
+                gvs = [torch.zeros_like(vc) if want_v else torch.zeros((1, 1), dtype=uc.dtype) for _ in ranges]
+            else:  # the kernel writes the sub-plane's rows of whole-factor gradients (0 elsewhere, as slicing gives)
+                a0, b0, shape_u, shape_v = ctx.rows
+                full_u = uc.new_zeros(shape_u) if want_u else None
+                full_v = vc.new_zeros(shape_v) if want_v else None
+                gu = full_u[a0:a0 + uc.shape[0]] if want_u else torch.zeros((1, 1), dtype=uc.dtype)
+                gvs = [full_v[b0:b0 + vc.shape[0]] if want_v else torch.zeros((1, 1), dtype=uc.dtype)]
+                gvs += [torch.zeros_like(vc) if want_v else torch.zeros((1, 1), dtype=uc.dtype) for _ in ranges[1:]]
             run([lambda a=a, b=b, gv=gv: mod.compose_backward(uc.numpy(), vc.numpy(), flat, gu.numpy(), gv.numpy(),
                                                               want_u, want_v, a, b)
                  for (a, b), gv in zip(ranges, gvs)])
-            gv = sum(gvs[1:], gvs[0]) if want_v else None
-        return guard_second_order(gu if want_u else None), guard_second_order(gv), None, None
+            if ctx.rows is None:
+                gv = sum(gvs[1:], gvs[0]) if want_v else None
+            else:
+                for part in gvs[1:] if want_v else []:
+                    gvs[0].add_(part)
+                gu, gv = full_u, full_v
+        return guard_second_order(gu if want_u else None), guard_second_order(gv), None, None, None
 
 
-def fused_compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int,
-                        read_at: torch.Tensor | None = None) -> torch.Tensor:
+def fused_compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int, read_at: torch.Tensor | None = None,
+                        rows: tuple[tuple[int, int], tuple[int, int]] | None = None) -> torch.Tensor:
     """Fused equivalent of :func:`tdfields.program.compose_plane_reference` (CPU, first derivatives only): the
-    rank-k plane ``[n_a, n_b, C]`` of two line factors ``u [n_a, k*C]``, ``v [n_b, k*C]``; with ``read_at``
-    (``[N, 2]`` continuous indices into the plane, no gradient) only the cells interpolation there reads, the
-    others 0. :func:`tdfields.ops.compose_plane` picks it or the reference per call."""
+    rank-k plane ``[n_a, n_b, C]`` of two line factors ``u [n_a, k*C]``, ``v [n_b, k*C]``; with ``rows``
+    (``((a0, a1), (b0, b1))``) the sub-plane of ``u[a0:a1]`` and ``v[b0:b1]``, gradients to the whole factors; with
+    ``read_at`` (``[N, 2]`` continuous indices into the (sub-)plane, no gradient) only the cells interpolation there
+    reads, the others 0. :func:`tdfields.ops.compose_plane` picks it or the reference per call."""
     _require_numba()
     if read_at is not None and (read_at.dim() != 2 or read_at.shape[1] != 2):
         raise ValueError(f"read_at must be [N, 2] plane coordinates, got {tuple(read_at.shape)}")
-    return NumbaCompose.apply(u, v, rank, None if read_at is None else read_at.detach())
+    if rows is not None:
+        (a0, a1), (b0, b1) = rows
+        if not (0 <= a0 < a1 <= u.shape[0] and 0 <= b0 < b1 <= v.shape[0]):
+            raise ValueError(f"rows {rows} are not inside the factors' {u.shape[0]} and {v.shape[0]} rows")
+        rows = ((int(a0), int(a1)), (int(b0), int(b1)))
+    return NumbaCompose.apply(u, v, rank, None if read_at is None else read_at.detach(), rows)
 
 
 class NumbaGridCoords(torch.autograd.Function):

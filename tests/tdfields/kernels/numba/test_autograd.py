@@ -211,6 +211,37 @@ def test_fused_composition_backward_with_mostly_zero_cells():
         torch.testing.assert_close(b, a)
 
 
+@pytest.mark.parametrize("want", [(True, True), (True, False), (False, True)])
+def test_sub_plane_rows_match_composing_the_slices(want):
+    """``rows`` composes a sub-plane from whole factors: the values of composing the two slices, bit for bit, and
+    whole-factor gradients equal to the slices' scattered into zeros (what autograd's slicing gives), on two
+    threads (the backward sums per-thread parts of v's gradient) as on one."""
+    torch.manual_seed(2)
+    u = torch.randn(150, 4 * 8, requires_grad=want[0])
+    v = torch.randn(120, 4 * 8, requires_grad=want[1])
+    rows = ((10, 140), (5, 115))  # 14300 cells: two threads split them (tdfields.kernels.threads.parts_for)
+    read = torch.rand(400, 2) * torch.tensor([129.0, 109.0])
+    inputs = [t for t, w in zip((u, v), want) if w]
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            with kernels.use_backend("numba"):
+                sliced = compose_plane(u[10:140], v[5:115], 4, read_at=read)
+                whole = compose_plane(u, v, 4, read_at=read, rows=rows)
+            assert torch.equal(whole, sliced)
+            g = torch.randn_like(sliced)
+            for a, b in zip(torch.autograd.grad(sliced, inputs, g), torch.autograd.grad(whole, inputs, g)):
+                assert torch.equal(b, a)
+    finally:
+        torch.set_num_threads(threads)
+    ref = compose_plane(u, v, 4, rows=rows)  # the reference slices: same values to rounding
+    torch.testing.assert_close(ref, torch.einsum("akc,bkc->abc", u[10:140].view(130, 4, 8),
+                                                 v[5:115].view(110, 4, 8)))
+    with pytest.raises(ValueError, match="rows"):
+        kernels.fused_compose_plane(u, v, 4, rows=((10, 151), (5, 115)))
+
+
 def test_empty_batches():
     f = tdfields.MultiResolution([tdfields.CP([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2),
                                   tdfields.SixAxis([[0, 1]] * 3, cell_size=0.25, channels=2, rank=2)])
@@ -229,7 +260,7 @@ def test_composition_above_the_fused_rank_limit_takes_the_reference(monkeypatch)
     calls = []
     real = ops.kernels.fused_compose_plane
     monkeypatch.setattr(ops.kernels, "fused_compose_plane",
-                        lambda u, v, k, read_at=None: calls.append(k) or real(u, v, k, read_at))
+                        lambda u, v, k, read_at=None, rows=None: calls.append(k) or real(u, v, k, read_at, rows))
     for rank in (ops.FUSED_COMPOSE_MAX_RANK, ops.FUSED_COMPOSE_MAX_RANK + 1):
         u, v = torch.randn(5, rank * 2), torch.randn(6, rank * 2)
         with kernels.use_backend("numba"):
