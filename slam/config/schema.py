@@ -45,7 +45,10 @@ class DataConfig:
     max_frames: Optional[int] = num(None, **COUNT)
     stride: int = num(1, **COUNT)
     max_bad_fraction: float = num(0.1, **FRACTION)
-    prefetch: int = num(2, lo=0, hi=64)  # frames read ahead on a background thread (0: on demand)
+    prefetch: int = num(2, lo=0, hi=64)  # frames read ahead (0: on demand)
+    # ours (slam/engine/frames.py): read them on a background thread, or in the tracker's waits for the mapper
+    # (waits: no thread beside the tracker; the same frames)
+    prefetch_in: str = choice("thread", ("thread", "waits"))
     options: dict = field(default_factory=dict)
 
 

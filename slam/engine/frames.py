@@ -1,8 +1,11 @@
 """The frames a run reads, ahead of time and without aborting on a bad one.
 
-:class:`FrameSource` reads the selected frames of a dataset in order. A background thread reads, decodes,
-undistorts and resizes the next ``ahead`` frames and puts them on the run's device while the loop works on the
-current one (image decoding and torch's resampling release the GIL, so this uses the second core). A frame that
+:class:`FrameSource` reads the selected frames of a dataset in order, the next ``ahead`` in advance: reading,
+decoding, undistorting and resizing them and putting them on the run's device. ``data.prefetch_in: thread`` does that
+on a background thread while the loop works on the current frame (image decoding and torch's resampling release the
+GIL, so this uses the second core); ``waits`` does it on the loop's own thread while the loop waits for the mapper
+(:meth:`FrameSource.read_while`), so no thread competes with the tracker for the interpreter and the cores (ours:
+8 % of the frame time at ``tum/fr1_rpy-cpu-fast``, docs/slam.md, "Frames read in the tracker's waits"). A frame that
 cannot be read (missing, truncated or corrupt file, wrong image size) comes back as a :class:`LoadedFrame` with
 ``error`` set instead of raising, so the loop can skip it like a frame without depth and keep the run.
 
@@ -16,6 +19,7 @@ from __future__ import annotations
 import concurrent.futures
 import logging
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 
@@ -101,31 +105,57 @@ class FrameSource:
         indices: dataset index of each processed frame.
         shape: ``(H, W)`` every frame must have after loading.
         device: where the tensors go.
-        ahead: frames read in advance on a background thread (0: read on demand, on the caller's thread).
+        ahead: frames read in advance (0: read on demand, on the caller's thread).
+        in_waits: read them in the loop's waits for the mapper (:meth:`read_while`) instead of on a background
+            thread; a frame not read by then is read on demand.
     """
 
-    def __init__(self, dataset, indices: list[int], shape: tuple[int, int], device: torch.device, ahead: int = 2):
+    def __init__(self, dataset, indices: list[int], shape: tuple[int, int], device: torch.device, ahead: int = 2,
+                 in_waits: bool = False):
         self.dataset = dataset
         self.indices = list(indices)
         self.shape = tuple(shape)
         self.device = torch.device(device)
         self.ahead = int(ahead)
-        self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-read") if ahead > 0 else None
+        self.in_waits = bool(in_waits)
+        threaded = ahead > 0 and not self.in_waits
+        self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-read") if threaded else None
         self._pending: dict[int, concurrent.futures.Future] = {}
+        self._read: dict[int, LoadedFrame] = {}  # read in the loop's waits (in_waits), not yet taken
 
     def _submit(self, k: int) -> None:
         if k < len(self.indices) and k not in self._pending:
             self._pending[k] = self._pool.submit(read_frame, self.dataset, k, self.indices[k], self.shape, self.device)
 
+    def _read_now(self, k: int) -> LoadedFrame:
+        return read_frame(self.dataset, k, self.indices[k], self.shape, self.device)
+
     def get(self, k: int) -> LoadedFrame:
         """Frame ``k`` (reads ahead up to ``k + ahead``; frames before ``k`` still pending are dropped)."""
         if self._pool is None:
-            return read_frame(self.dataset, k, self.indices[k], self.shape, self.device)
+            for old in [j for j in self._read if j < k]:
+                del self._read[old]
+            return self._read.pop(k) if k in self._read else self._read_now(k)
         for old in [j for j in self._pending if j < k]:
             self._pending.pop(old).cancel()
         for j in range(k, k + self.ahead + 1):
             self._submit(j)
         return self._pending.pop(k).result()
+
+    def read_while(self, k: int, busy: Callable[[], bool]) -> int:
+        """With ``in_waits``: read frames ``k ... k + ahead`` not read yet, one at a time, while ``busy()`` (the
+        mapper call the loop waits for runs); returns how many were read. Without, a no-op (the thread reads)."""
+        if not self.in_waits:
+            return 0
+        n = 0
+        for j in range(k, min(k + self.ahead + 1, len(self.indices))):
+            if j in self._read:
+                continue
+            if not busy():
+                break
+            self._read[j] = self._read_now(j)
+            n += 1
+        return n
 
     def close(self) -> None:
         if self._pool is not None:
@@ -134,3 +164,4 @@ class FrameSource:
             self._pending.clear()
             self._pool.shutdown(wait=True)
             self._pool = None
+        self._read.clear()

@@ -126,6 +126,13 @@ class _Call:
     def __init__(self, owner: "MapProcess", job):
         self.owner, self.job, self._done = owner, job, None
 
+    def done(self) -> bool:
+        """Whether the call's reply has arrived (replies come in order: one for each call sent before it too)."""
+        if self._done is not None:
+            return True
+        waiting = self.owner._waiting
+        return self in waiting and self.owner._replies.qsize() > waiting.index(self)
+
     def result(self):
         while self._done is None:
             self.owner._receive()

@@ -173,14 +173,24 @@ class MapWorker:
                 d.snapshot = None
         return out
 
-    def sync(self, j: int) -> list[MapDone]:
+    def _upto(self, j: int) -> int:
+        upto = j - self.lag
+        return max(upto, self._queue[0][0]) if not self._applied_any and self._queue else upto
+
+    def busy(self, j: int) -> bool:
+        """Whether :meth:`sync` of frame ``j`` would wait now: a call it finishes is still running."""
+        upto = self._upto(j)
+        return any(not (isinstance(f, MapDone) or f.done()) for k, f in self._queue if k <= upto)
+
+    def sync(self, j: int, idle=None) -> list[MapDone]:
         """Before tracking frame ``j``: finish the calls of frames ``<= j - lag`` (waiting if needed), make the
         tracker's map the one the last of them left, and return them in order so the loop can apply their
-        results. The first call (the warm-up) is always waited for: nothing is tracked against an empty map."""
-        upto = j - self.lag
-        if not self._applied_any and self._queue:
-            upto = max(upto, self._queue[0][0])
-        out = self._collect(upto)
+        results. The first call (the warm-up) is always waited for: nothing is tracked against an empty map.
+        ``idle(j, busy)``: work to do first while ``busy()`` says the wait has not ended (reading frames ahead,
+        :meth:`slam.engine.frames.FrameSource.read_while`); it cannot change what the calls compute."""
+        if idle is not None:
+            idle(j, lambda: self.busy(j))
+        out = self._collect(self._upto(j))
         self._applied_any = self._applied_any or bool(out)
         return out
 

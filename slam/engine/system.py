@@ -4,8 +4,8 @@ A frame is: sync with the mapper, read, predict, track (with recovery, :mod:`sla
 submit for mapping. Writing a run's outputs and checkpoints lives in :mod:`slam.run`, which reads the run through
 :meth:`SLAM.view` and saves and restores it through :meth:`SLAM.state_dict` / :meth:`SLAM.load_state_dict`.
 
-Frames are read ahead on a background thread (:mod:`slam.engine.frames`); mapping runs inline (sequential, ESLAM's
-effective schedule) or beside the tracker (``parallel``), both deterministic (:mod:`slam.engine.map_worker`).
+Frames are read ahead on a thread or in the waits for the mapper (:mod:`slam.engine.frames`); mapping runs inline
+(sequential, ESLAM's schedule) or beside the tracker (``parallel``), both deterministic (:mod:`slam.engine.map_worker`).
 
 Robustness: a frame that cannot be read is not tracked or mapped (its pose is the prediction: constant velocity
 between two trusted poses, or the previous pose); a frame without valid depth is tracked on its colour and not mapped
@@ -85,7 +85,7 @@ class SLAM:
         self.size = scene_size(self.scene)  # (parameters, field bytes), after each growth too
         self.keyframes = KeyframeStore.for_mapping(cfg.mapping)
         self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
-                                  ahead=cfg.data.prefetch)
+                                  ahead=cfg.data.prefetch, in_waits=cfg.data.prefetch_in == "waits")
         t0 = time.perf_counter()
         frame0 = (first.color.to(self.device), first.depth.to(self.device), matrix_to_pose(self.c2w0))
         self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel,
@@ -126,7 +126,7 @@ class SLAM:
     # ------------------------------------------------------------------------------------------------- a frame
     def step(self, k: int) -> FrameRecord:
         """Process the k-th selected frame (track, then map if scheduled); returns what happened."""
-        self._apply(self.mapper.sync(k))
+        self._apply(self.mapper.sync(k, idle=self.frames.read_while))  # reads ahead while it waits (prefetch_in)
         frame = self.frames.get(k)
         pose, tracked, trusted = self._pose(k, frame)
         self.state.est.append(pose.cpu())

@@ -25,7 +25,9 @@ def test_a_mapper_process_gives_the_thread_modes_run_through_a_growth_a_stop_and
 
     run = [f"data.path={tiny_seq}", *RUN, "parallel=true", f"mapping.optimizer_state={state}"]
     thread = load_config("synthetic", run)
-    proc = load_config("synthetic", [*run, "mapper_process=true"])
+    # and the process run reads its frames in the tracker's waits (data.prefetch_in: waits) in one of the two
+    reader = "waits" if state == "persistent" else "thread"
+    proc = load_config("synthetic", [*run, "mapper_process=true", f"data.prefetch_in={reader}"])
     full = run_to_folder(thread, tmp_path / "thread", progress=False, mesh=False)
     at = next(e["frame"] for e in full["events"] if "growth" in e)
     out = tmp_path / "process"
