@@ -28,7 +28,9 @@ def test_the_fast_preset_is_the_cpu_preset_with_the_measured_levers():
         assert fast[group][key] == value and cpu[group][key] != value, (group, key)
         fast[group][key] = cpu[group][key]
     assert fast["mapper_process"] and not cpu["mapper_process"]  # the same results, bit for bit
+    assert fast["data"]["prefetch_in"] == "waits" and cpu["data"]["prefetch_in"] == "thread"  # the same frames
     fast["name"], fast["mapper_process"] = cpu["name"], False
+    fast["data"]["prefetch_in"], fast["data"]["prefetch"] = cpu["data"]["prefetch_in"], cpu["data"]["prefetch"]
     assert fast == cpu
 
 
