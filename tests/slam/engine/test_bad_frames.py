@@ -45,12 +45,14 @@ def excerpt(shared_data):
     return p
 
 
-def test_a_truncated_png_mid_run_is_skipped_and_listed(excerpt, tmp_path):
+# read on the reader thread (sequential loop), and in the tracker's waits for a mapper thread
+@pytest.mark.parametrize("reader", [[], ["parallel=true", "data.prefetch_in=waits"]], ids=["thread", "waits"])
+def test_a_truncated_png_mid_run_is_skipped_and_listed(excerpt, tmp_path, reader):
     from slam.run.runner import run_to_folder
 
     data = tmp_path / "tum_fr1_rpy"  # the folder name tells the loader the camera (fr1)
     names = _copy_with_truncated(excerpt, data, [3])
-    cfg = load_config("tum/fr1_rpy-cpu", [f"data.path={data}", *FAST, "data.max_bad_fraction=0.2"])
+    cfg = load_config("tum/fr1_rpy-cpu", [f"data.path={data}", *FAST, "data.max_bad_fraction=0.2", *reader])
     m = run_to_folder(cfg, tmp_path / "out", progress=False, mesh=False)
     bad = [e for e in m["events"] if e.get("bad_frame")]
     assert [e["frame"] for e in bad] == [3] and names[0] in bad[0]["event"]
