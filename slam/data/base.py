@@ -20,32 +20,16 @@ __all__ = ["RGBDDataset", "read_color", "read_depth", "undistort_grid"]
 log = logging.getLogger(__name__)
 
 
-# Pillow decodes these modes to the arrays imageio returns (imageio converts palette images and 32-bit PNGs first):
-# read through Pillow directly, 1 ms a frame less of imageio's wrapping (its metadata pass, an "I;16" conversion)
-_DIRECT_MODES = ("RGB", "RGBA", "I;16")
-
-
-def _read_image(path: Path, what: str) -> np.ndarray:
-    """``path`` decoded as a writable array, the same as ``imageio.v3.imread(path, plugin="pillow")``; SlamInputError
-    naming the file (``what``: "colour", "depth") if it is missing or cannot be decoded."""
-    from PIL import Image
-
-    try:
-        with Image.open(path) as img:
-            if img.mode in _DIRECT_MODES:
-                return np.array(img)
-        import imageio.v3 as iio
-
-        return iio.imread(path, plugin="pillow")  # one decoder: no slow fall-through for corrupt files
-    except FileNotFoundError:
-        raise SlamInputError(f"{path}: {what} image not found") from None
-    except Exception as exc:  # Pillow and imageio raise many types for corrupt files
-        raise SlamInputError(f"{path}: cannot read {what} image ({type(exc).__name__}: {exc})") from None
-
-
 def read_color(path: Path) -> np.ndarray:
     """Read an 8-bit colour image as ``[H, W, 3]`` uint8 RGB (alpha dropped); SlamInputError if unreadable."""
-    img = _read_image(path, "colour")
+    import imageio.v3 as iio
+
+    try:
+        img = iio.imread(path, plugin="pillow")  # one decoder: no slow fall-through for corrupt files
+    except FileNotFoundError:
+        raise SlamInputError(f"{path}: colour image not found") from None
+    except Exception as exc:  # imageio raises many types for corrupt files
+        raise SlamInputError(f"{path}: cannot read colour image ({type(exc).__name__}: {exc})") from None
     if img.ndim != 3 or img.shape[2] not in (3, 4):
         raise SlamInputError(f"{path}: expected an RGB colour image, got array of shape {img.shape}")
     if img.dtype != np.uint8:
@@ -55,7 +39,14 @@ def read_color(path: Path) -> np.ndarray:
 
 def read_depth(path: Path, shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read a 16-bit depth PNG as ``[H, W]`` uint16; SlamInputError if unreadable, not uint16 or not ``shape``."""
-    img = _read_image(path, "depth")
+    import imageio.v3 as iio
+
+    try:
+        img = iio.imread(path, plugin="pillow")  # one decoder: no slow fall-through for corrupt files
+    except FileNotFoundError:
+        raise SlamInputError(f"{path}: depth image not found") from None
+    except Exception as exc:
+        raise SlamInputError(f"{path}: cannot read depth image ({type(exc).__name__}: {exc})") from None
     if img.ndim != 2:
         raise SlamInputError(f"{path}: expected a single-channel depth image, got array of shape {img.shape}")
     if img.dtype != np.uint16:
