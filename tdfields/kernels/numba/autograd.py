@@ -155,39 +155,36 @@ class NumbaCompose(torch.autograd.Function):
              for a, b in split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))])
         ctx.save_for_backward(uc, vc)
         ctx.rank = rank
-        ctx.rows = None if rows is None else (a0, b0, tuple(u.shape), tuple(v.shape))
+        ctx.rows = (a0, b0, tuple(u.shape), tuple(v.shape))
         return plane
 
     @staticmethod
     def backward(ctx, grad_plane):
         uc, vc = ctx.saved_tensors
         want_u, want_v = bool(ctx.needs_input_grad[0]), bool(ctx.needs_input_grad[1])
+        a0, b0, shape_u, shape_v = ctx.rows
         with torch.no_grad():
             gp = grad_plane.detach().to(uc.dtype).contiguous()
             mod = compose_kernels(ctx.rank, gp.shape[-1], _dtype_name(uc.dtype))
             flat = gp.view(-1, gp.shape[-1]).numpy()
             ranges = split(uc.shape[0], parts_for(uc.shape[0] * vc.shape[0]))
-            full_u = full_v = None
-            if ctx.rows is None:
-                gu = torch.empty_like(uc) if want_u else torch.zeros((1, 1), dtype=uc.dtype)
-                gvs = [torch.zeros_like(vc) if want_v else torch.zeros((1, 1), dtype=uc.dtype) for _ in ranges]
-            else:  # the kernel writes the sub-plane's rows of whole-factor gradients (0 elsewhere, as slicing gives)
-                a0, b0, shape_u, shape_v = ctx.rows
-                full_u = uc.new_zeros(shape_u) if want_u else None
-                full_v = vc.new_zeros(shape_v) if want_v else None
-                gu = full_u[a0:a0 + uc.shape[0]] if want_u else torch.zeros((1, 1), dtype=uc.dtype)
-                gvs = [full_v[b0:b0 + vc.shape[0]] if want_v else torch.zeros((1, 1), dtype=uc.dtype)]
-                gvs += [torch.zeros_like(vc) if want_v else torch.zeros((1, 1), dtype=uc.dtype) for _ in ranges[1:]]
-            run([lambda a=a, b=b, gv=gv: mod.compose_backward(uc.numpy(), vc.numpy(), flat, gu.numpy(), gv.numpy(),
-                                                              want_u, want_v, a, b)
-                 for (a, b), gv in zip(ranges, gvs)])
-            if ctx.rows is None:
-                gv = sum(gvs[1:], gvs[0]) if want_v else None
-            else:
-                for part in gvs[1:] if want_v else []:
-                    gvs[0].add_(part)
-                gu, gv = full_u, full_v
-        return guard_second_order(gu if want_u else None), guard_second_order(gv), None, None, None
+            # whole-factor gradients: the kernel writes the sub-plane's rows of them, the rest stays 0 (as slicing
+            # gives); every row of u's when the plane spans them all
+            gu = gv = None
+            if want_u:
+                gu = torch.empty_like(uc) if tuple(uc.shape) == shape_u else uc.new_zeros(shape_u)
+            if want_v:
+                gv = vc.new_zeros(shape_v)
+            none = torch.zeros((1, 1), dtype=uc.dtype)
+            gu_rows = gu[a0:a0 + uc.shape[0]] if want_u else none
+            gvs = [gv[b0:b0 + vc.shape[0]] if want_v else none]  # one part of v's gradient per thread, summed below
+            gvs += [torch.zeros_like(vc) if want_v else none for _ in ranges[1:]]
+            run([lambda a=a, b=b, part=part: mod.compose_backward(uc.numpy(), vc.numpy(), flat, gu_rows.numpy(),
+                                                                  part.numpy(), want_u, want_v, a, b)
+                 for (a, b), part in zip(ranges, gvs)])
+            for part in gvs[1:] if want_v else []:
+                gvs[0].add_(part)
+        return guard_second_order(gu), guard_second_order(gv), None, None, None
 
 
 def fused_compose_plane(u: torch.Tensor, v: torch.Tensor, rank: int, read_at: torch.Tensor | None = None,
