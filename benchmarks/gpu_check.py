@@ -5,6 +5,9 @@ others' time and a lease that ends early still returns what finished; the summar
 
 1. ``slam-*``: a short SLAM run with ``--device cuda`` in both loop modes (sequential, parallel), with the mapper in
    its own process, and with the levers of ``tum/fr1_rpy-cpu-fast`` (carried Adam moments on the device among them).
+   ``preset-*``: the presets' frame time and ATE on the excerpt, seed 0: ``tum/fr1_rpy-cpu-fast`` on the device with
+   the reference path and with the Triton field kernel (``TDFIELDS_BACKEND``) and on this machine's CPU, and the
+   Adam preset ``tum/fr1_rpy-cpu`` on the device and the CPU (the fast preset's frame time where the paper measured).
 2. ``cuda-tests``: the Triton kernel's tests compiled for the GPU (``TRITON_INTERPRET=0``).
 3. ``gn-tracker-every`` / ``-first``: the second-order tracker against Adam on the device
    (``benchmarks/gn_convergence.py --device``: time per evaluation / iteration, evaluations to 1 mm and 0.1 degree
@@ -131,9 +134,9 @@ def _read_json(path: Path) -> dict | None:
         return None
 
 
-def summarize(info: dict, steps: list[dict], out: Path, smoke: bool) -> dict:
+def summarize(info: dict, steps: list[dict], out: Path, smoke: bool, presets: list[dict] | None = None) -> dict:
     """Gather the finished steps' JSON into ``gpu_check.json`` + ``gpu_check.md`` (rewritten after every step)."""
-    result = {"info": info, "steps": steps, "gn_tracker": {}}
+    result = {"info": info, "steps": steps, "presets": presets or [], "gn_tracker": {}}
     for mode in ("every", "first"):
         g = _read_json(out / f"gn_{mode}.json")
         if g:
@@ -153,6 +156,11 @@ def summarize(info: dict, steps: list[dict], out: Path, smoke: bool) -> dict:
              f"{' [smoke run on CPU]' if smoke else ''}", "",
              "| step | result | wall s |", "|---|---|---|"]
     lines += [f"| {s['step']} | {'ok' if s['returncode'] == 0 else s['returncode']} | {s['wall_s']} |" for s in steps]
+    if result["presets"]:
+        lines += ["", "| run | preset | device | backend | frames | FPT s | ATE RMSE cm | mapping calls |",
+                  "|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['run']} | {r['preset']} | {r['device']} | {r['backend']} | {r['frames']} | {r['fpt_s']:.4f} | "
+                  f"{r['ate_rmse_cm']:.2f} | {r['mapping_calls']} |" for r in result["presets"]]
     if "slam" in result:
         lines += ["", "| representation | ATE RMSE cm | FPT s |", "|---|---|---|"]
         lines += [f"| {r['representation']} | {r['ate_rmse_cm']['mean']:.2f} | {r['fpt_s']['median']:.3f} |"
@@ -217,10 +225,11 @@ def main(argv=None) -> int:
     py = sys.executable
     dev = "cpu" if args.smoke else "cuda"
     steps = Steps(env, log, args.budget_s)
+    preset_rows: list[dict] = []
 
     def step(*a, **k):
         steps.run(*a, **k)
-        summarize(info, steps.done, out, args.smoke)
+        summarize(info, steps.done, out, args.smoke, preset_rows)
 
     # ---- 1. short SLAM runs on the device, both loop modes: the first thing to know is that --device cuda runs
     seq = tiny_sequence(work)
@@ -237,6 +246,28 @@ def main(argv=None) -> int:
                              ("fast", "fast-levers", fast)):
         step(f"slam-{dev}-{name}", [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", "--device", dev, "--data",
                                     str(seq), "--out", str(work / f"tiny_{mode}"), *tiny, *over], 90)
+    # ---- 1b. the presets' frame time on this machine, the device against its own CPU, seed 0 (issue 21 asks how
+    # fast the fast preset is where the paper measured): tum/fr1_rpy-cpu-fast on cuda with the reference path and with
+    # the Triton field kernel, on the host CPU, and the Adam preset tum/fr1_rpy-cpu on cuda and on the CPU
+    pdata, pover = (str(seq), ["--config", "synthetic", *tiny]) if args.smoke else (args.data, [])
+    for name, preset, device, backend in (("fast-cuda", "tum/fr1_rpy-cpu-fast", dev, "torch"),
+                                          ("fast-cuda-triton", "tum/fr1_rpy-cpu-fast", dev, "triton"),
+                                          ("fast-cpu", "tum/fr1_rpy-cpu-fast", "cpu", "auto"),
+                                          ("adam-cuda", "tum/fr1_rpy-cpu", dev, "torch"),
+                                          ("adam-cpu", "tum/fr1_rpy-cpu", "cpu", "auto")):
+        if args.smoke and name in ("fast-cuda-triton", "adam-cuda"):
+            continue  # the same as fast-cpu / adam-cpu on a CPU
+        cfg = pover[:2] if args.smoke else ["--config", preset]
+        ran = steps.run(f"preset-{name}", [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", *cfg, "--device",
+                                           device, "--data", pdata, "--out", str(work / f"preset_{name}"),
+                                           *pover[2:], "seed=0"], 120, dict(env, TDFIELDS_BACKEND=backend))
+        _keep(ran, work / f"preset_{name}" / "metrics.json", work / f"preset_{name}.json")
+        if ran["returncode"] == 0 and (m := _read_json(work / f"preset_{name}.json")):
+            preset_rows.append({"run": name, "preset": "synthetic" if args.smoke else preset, "device": device,
+                                "backend": backend,
+                                "frames": m["num_frames"], "fpt_s": m["fpt_s"], "ate_rmse_cm": 100 * m["ate_rmse_m"],
+                                "mapping_calls": m.get("mapping_calls"), "frames_lost": m.get("frames_lost")})
+        summarize(info, steps.done, out, args.smoke, preset_rows)
     # ---- 2. the Triton kernel's tests, compiled for the GPU
     triton_tests = "tests/tdfields/kernels/triton/test_autograd.py"
     if args.smoke:
@@ -252,7 +283,7 @@ def main(argv=None) -> int:
         ran = steps.run(f"gn-tracker-{mode}", [py, "benchmarks/gn_convergence.py", "--out", str(work / f"gn_{mode}"),
                                                "--device", dev, *gn, f"tracking.gn_hessian={mode}"], 120)
         _keep(ran, work / f"gn_{mode}" / "gn_convergence.json", out / f"gn_{mode}.json")
-        summarize(info, steps.done, out, args.smoke)
+        summarize(info, steps.done, out, args.smoke, preset_rows)
     # ---- 4. field speed
     bench = [py, "-m", "pytest", "benchmarks/test_field_speed.py", "-p", "no:cacheprovider", "-q"]
     if args.smoke:
@@ -271,7 +302,7 @@ def main(argv=None) -> int:
                              "--no-mesh", "--quiet", "--out", str(work / "slam"), *sc[2:], f"device={dev}"],
                     60 if args.smoke else 270)
     _keep(ran, work / "slam" / "slam_compare.json", out / "slam_compare.json")
-    result = summarize(info, steps.done, out, args.smoke)
+    result = summarize(info, steps.done, out, args.smoke, preset_rows)
     print((out / "gpu_check.md").read_text(), end="")
     return 0 if all(s["returncode"] == 0 for s in result["steps"]) else 1
 
