@@ -202,6 +202,9 @@ class MappingConfig:
     need_young: int = num(20, **NONNEG)
     need_max_gap: int = num(3, **COUNT)
     need_loss_factor: float = num(1.2, lo=1.0, hi=1000.0)
+    # ours: iterations of a by_need call made only because need_max_gap frames passed (a routine refresh; the young
+    # frames', the loss-triggered and the last frame's calls keep `iters`); 0: `iters`
+    need_gap_iters: int = num(0, **NONNEG)
     # ours (slam/engine/mapper.py, MapMoments): per_call is ESLAM's fresh Adam every call; persistent carries the
     # map's Adam moments from call to call (as Co-SLAM's one map optimiser), the BA poses' Adam still fresh per call
     optimizer_state: str = choice("per_call", ("per_call", "persistent"))

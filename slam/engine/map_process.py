@@ -86,11 +86,11 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
                 state = moments.cpu_state()
                 reply = ("moments", None if state is None else {n: pack_state(st) for n, st in state.items()})
             else:  # "map"
-                k, color, depth, pose, first, keyframe = body
+                k, color, depth, pose, first, keyframe, iters = body
                 color, depth = torch.from_numpy(color), torch.from_numpy(depth)
                 t0 = time.perf_counter()
                 res = map_frame(scene, k, color.to(device), depth.to(device), pose.to(device), intr, keyframes, cfg,
-                                gen, first=first, moments=moments)
+                                gen, first=first, moments=moments, iters=iters)
                 keep_keyframe(keyframes, k, color, depth, pose, res, keyframe)
                 seconds = time.perf_counter() - t0
                 res.pose = res.pose.cpu()
@@ -210,7 +210,8 @@ class MapProcess:
         """Queue a mapping call (a :class:`slam.engine.map_worker.MapJob`; its images travel on the CPU)."""
         call = _Call(self, job)
         images = pack_state({"color": job.color, "depth": job.depth})
-        self._send("map", (job.k, images["color"], images["depth"], job.pose.cpu(), job.first, job.keyframe))
+        self._send("map", (job.k, images["color"], images["depth"], job.pose.cpu(), job.first, job.keyframe,
+                   job.iters))
         self._waiting.append(call)
         return call
 

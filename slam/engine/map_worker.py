@@ -41,7 +41,8 @@ from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, 
 @dataclass
 class MapJob:
     """One mapping call: frame position ``k``, its images ``[H, W, 3]`` / ``[H, W]`` on the device, its tracked
-    pose ``[7]``, whether it is the first-frame warm-up and whether it becomes a keyframe afterwards."""
+    pose ``[7]``, whether it is the first-frame warm-up, whether it becomes a keyframe afterwards, and its iterations
+    (0: ``mapping.iters``; the schedule's ``need_gap_iters`` for a routine refresh)."""
 
     k: int
     color: torch.Tensor
@@ -49,6 +50,7 @@ class MapJob:
     pose: torch.Tensor
     first: bool
     keyframe: bool
+    iters: int = 0
 
 
 @dataclass
@@ -111,7 +113,8 @@ class MapWorker:
     def _run(self, job: MapJob) -> MapDone:
         t0 = time.perf_counter()
         res = map_frame(self.scene, job.k, job.color, job.depth, job.pose, self.intr, self.keyframes, self.cfg,
-                        self.gen, first=job.first, should_stop=self._abort.is_set, moments=self.moments)
+                        self.gen, first=job.first, should_stop=self._abort.is_set, moments=self.moments,
+                        iters=job.iters)
         keep_keyframe(self.keyframes, job.k, job.color, job.depth, job.pose, res, job.keyframe)
         snap = None
         if self.parallel:

@@ -241,6 +241,7 @@ def map_frame(
     first: bool = False,
     should_stop=None,
     moments: MapMoments | None = None,
+    iters: int = 0,
 ) -> MapResult:
     """One mapping call for frame ``index``.
 
@@ -254,6 +255,7 @@ def map_frame(
             call's work is thrown away, so the map is left mid-call and must not be saved).
         moments: the map's Adam state carried between calls (``mapping.optimizer_state: persistent``; read and
             updated here). None: every call starts a fresh Adam, whatever the config says.
+        iters: iterations of this call (0: ``mapping.iters``; the warm-up always takes ``iters_first``).
 
     Returns:
         :class:`MapResult` with the (possibly BA-refined) current pose.
@@ -266,7 +268,7 @@ def map_frame(
     steps, skipped, last = 0, 0, float("nan")
     per_frame = max(mc.pixels // len(frame_ids), 1)
     free_dev = free.to(depth.device)
-    for _ in range(mc.iters_first if first else mc.iters):
+    for _ in range(mc.iters_first if first else iters or mc.iters):
         if should_stop is not None and should_stop():
             raise MappingAborted(f"mapping call of frame {index} aborted")
         loss = _loss(scene, colors, depths, opt.window_poses(poses0, free_dev), intrinsics, cfg, per_frame, generator)

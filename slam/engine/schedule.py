@@ -4,7 +4,8 @@
 depth) when the map is young (the first ``need_young`` frames), when ``need_max_gap`` frames have passed since the
 last mapped one, or when the map explains the frame worse than it explained the recent ones: its tracking loss is
 above ``need_loss_factor`` times the median of the last :data:`HISTORY` tracked frames' (new space in view, or a
-map that has fallen behind the camera). The first frame with depth and the last frame are always mapped. Every
+map that has fallen behind the camera). The first frame with depth and the last frame are always mapped. A call
+made only because of the gap (a routine refresh) takes ``need_gap_iters`` iterations where that is set. Every
 input is fixed by the frame numbers and the schedule, never by timing, so both loop modes stay deterministic.
 """
 
@@ -20,11 +21,31 @@ HISTORY = 10
 def mapping_due(k: int, st: RunState, mapping, n_frames: int) -> bool:
     """Whether trusted frame position ``k`` (with depth) is mapped; ``mapping``: the ``mapping`` config, ``st``: the
     run state after frame ``k`` was tracked and recorded."""
-    if not st.initialized or k == n_frames - 1:
-        return True
+    return mapping_reason(k, st, mapping, n_frames) is not None
+
+
+def mapping_reason(k: int, st: RunState, mapping, n_frames: int) -> str | None:
+    """Why trusted frame position ``k`` (with depth) is mapped, or None when it is not: ``"first"`` (the first frame
+    with depth), ``"last"``, ``"schedule"`` (``every_frame``), ``"young"``, ``"loss"`` (its tracking loss is above
+    ``need_loss_factor`` x the recent median) or ``"gap"`` (``need_max_gap`` frames since the last mapped one)."""
+    if not st.initialized:
+        return "first"
+    if k == n_frames - 1:
+        return "last"
     if mapping.schedule == "every_frame":
-        return k % mapping.every_frame == 0
-    if k < mapping.need_young or k - st.last_mapped >= mapping.need_max_gap:
-        return True
+        return "schedule" if k % mapping.every_frame == 0 else None
+    if k < mapping.need_young:
+        return "young"
     losses = [t["loss"] for t in st.tracking[-HISTORY - 1:-1] if t["trusted"]]
-    return len(losses) >= 3 and st.tracking[-1]["loss"] > mapping.need_loss_factor * statistics.median(losses)
+    if len(losses) >= 3 and st.tracking[-1]["loss"] > mapping.need_loss_factor * statistics.median(losses):
+        return "loss"
+    return "gap" if k - st.last_mapped >= mapping.need_max_gap else None
+
+
+def call_iters(k: int, st: RunState, mapping, n_frames: int) -> int | None:
+    """None when trusted frame position ``k`` (with depth) is not mapped, else its call's iterations: 0 (the call
+    takes ``mapping.iters``), or ``need_gap_iters`` for a call made only because ``need_max_gap`` frames passed."""
+    reason = mapping_reason(k, st, mapping, n_frames)
+    if reason is None:
+        return None
+    return mapping.need_gap_iters if reason == "gap" else 0

@@ -34,7 +34,7 @@ from slam.engine.recovery import TrackInput
 from slam.engine.rehearsal import preload
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
-from slam.engine.schedule import mapping_due
+from slam.engine.schedule import call_iters
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
@@ -52,9 +52,7 @@ class SLAM:
     """Tracking + mapping over a dataset with one scene model.
 
     Args:
-        cfg: resolved config.
-        dataset: a ``slam.data`` dataset.
-        device: torch device.
+        cfg: resolved config; dataset: a ``slam.data`` dataset; device: torch device.
     """
 
     def __init__(self, cfg: Config, dataset, device: torch.device | str = "cpu"):
@@ -177,11 +175,12 @@ class SLAM:
         self._grow(k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
         first = not st.initialized
-        if not mapping_due(k, st, cfg.mapping, len(self.indices)):
+        iters = call_iters(k, st, cfg.mapping, len(self.indices))
+        if iters is None:
             return False
         st.last_mapped = k
         self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first,
-                                  keyframe=first or k % cfg.mapping.keyframe_every == 0))
+                                  keyframe=first or k % cfg.mapping.keyframe_every == 0, iters=iters))
         st.initialized = True
         return True
 

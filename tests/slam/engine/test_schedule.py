@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from slam.engine.schedule import mapping_due
+from slam.engine.schedule import call_iters, mapping_due
 from slam.engine.state import RunState
 
 
@@ -26,3 +26,36 @@ def test_by_need_maps_while_young_after_a_gap_and_when_the_map_explains_a_frame_
     assert mapping_due(10, _state(steady + [1.3], 9), m, 100)  # the map explains this frame worse: new space
     assert mapping_due(10, _state(steady + [1.0], 7), m, 100)  # three frames since the last mapped one
     assert mapping_due(99, _state(steady + [1.0], 98), m, 100)  # the last frame
+
+
+def test_a_routine_refresh_takes_need_gap_iters_and_every_other_call_mapping_iters():
+    m = SimpleNamespace(schedule="by_need", every_frame=1, need_young=5, need_max_gap=3, need_loss_factor=1.2,
+                        need_gap_iters=2)
+    steady = [1.0] * 10
+    assert call_iters(4, _state(steady[:5], 3), m, 100) == 0  # young
+    assert call_iters(10, _state(steady + [1.0], 7), m, 100) == 2  # only the gap: a routine refresh
+    assert call_iters(10, _state(steady + [1.3], 7), m, 100) == 0  # the gap and new space: a full call
+    assert call_iters(10, _state(steady + [1.3], 9), m, 100) == 0
+    assert call_iters(99, _state(steady + [1.0], 96), m, 100) == 0  # the last frame
+    assert call_iters(10, _state(steady + [1.1], 9), m, 100) is None
+    assert call_iters(3, _state([], -1, initialized=False), m, 100) == 0  # the first frame with depth
+
+
+def test_the_loop_gives_each_call_its_iterations(tiny_seq):
+    """End to end, inline: the carried Adam moments count the steps the calls took (the warm-up has its own)."""
+    from slam.config import load_config
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+    from tests.slam.conftest import TINY
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "mapping.schedule=by_need",
+                                    "mapping.need_young=2", "mapping.need_max_gap=2", "mapping.need_loss_factor=1000",
+                                    "mapping.need_gap_iters=1", "mapping.optimizer_state=persistent"])
+    s = SLAM(cfg, load_data(cfg))
+    try:
+        for k in range(6):
+            s.step(k)
+        # frame 0 the warm-up, 1 young (3 iterations), 3 a routine refresh (1), 5 the last frame (3)
+        assert {float(v["step"]) for v in s.mapper.moments.state.values()} == {7.0}
+    finally:
+        s.close()
