@@ -23,7 +23,8 @@ def test_the_fast_preset_is_the_cpu_preset_with_the_measured_levers():
               ("tracking", "gn_hessian"): "first", ("tracking", "gn_iters"): 4, ("mapping", "schedule"): "by_need",
               ("mapping", "optimizer_state"): "persistent", ("rendering", "fused"): True,
               ("rendering", "n_stratified"): 8, ("rendering", "color_cutoff"): 0.01,
-              ("mapping", "rays_without_depth"): "skip", ("mapping", "need_max_gap"): 4}
+              ("mapping", "rays_without_depth"): "skip", ("mapping", "need_max_gap"): 4,
+              ("mapping", "need_gap_iters"): 5}
     for (group, key), value in levers.items():
         assert fast[group][key] == value and cpu[group][key] != value, (group, key)
         fast[group][key] = cpu[group][key]
