@@ -240,8 +240,7 @@ def map_frame(
     generator: torch.Generator,
     first: bool = False,
     should_stop=None,
-    moments: MapMoments | None = None,
-    iters: int = 0,
+    moments: MapMoments | None = None, iters: int = 0,
 ) -> MapResult:
     """One mapping call for frame ``index``.
 
@@ -257,8 +256,7 @@ def map_frame(
             updated here). None: every call starts a fresh Adam, whatever the config says.
         iters: iterations of this call (0: ``mapping.iters``; the warm-up always takes ``iters_first``).
 
-    Returns:
-        :class:`MapResult` with the (possibly BA-refined) current pose.
+    Returns: :class:`MapResult` with the (possibly BA-refined) current pose.
     """
     mc = cfg.mapping
     window = _window(keyframes, depth, pose, intrinsics, mc, generator, first)
