@@ -205,9 +205,6 @@ class MappingConfig:
     # ours: iterations of a by_need call made only because need_max_gap frames passed (a routine refresh; the young
     # frames', the loss-triggered and the last frame's calls keep `iters`); 0: `iters`
     need_gap_iters: int = num(0, **NONNEG)
-    # ours: in parallel mode the tracker first reads a routine refresh's map need_gap_lag frames after its frame
-    # instead of max(every_frame, 2) (0 or less than that: the mode's lag)
-    need_gap_lag: int = num(0, **NONNEG)
     # ours (slam/engine/mapper.py, MapMoments): per_call is ESLAM's fresh Adam every call; persistent carries the
     # map's Adam moments from call to call (as Co-SLAM's one map optimiser), the BA poses' Adam still fresh per call
     optimizer_state: str = choice("per_call", ("per_call", "persistent"))

@@ -7,8 +7,7 @@ applies that call's results (its BA-refined pose of ``m``). Sequential mode is `
 frame is tracked against the map of the frame before it (ESLAM's effective behaviour). Parallel mode uses
 ``lag = max(every_frame, 2)``: the call of frame ``m`` runs while frames ``m + 1 ... m + lag - 1`` are tracked
 against the previous map, and the tracker waits for it only at ``m + lag`` (the first call, the warm-up, is
-always waited for). A call may carry a longer lag of its own (a routine refresh's ``mapping.need_gap_lag``): the
-tracker then reads its map from ``m + lag`` on. What the tracker sees is fixed by
+always waited for). What the tracker sees is fixed by
 the frame numbers, never by timing, so a parallel run repeats exactly too.
 
 The tracker never sees a half-written map: in parallel mode it tracks on its own copy of the scene, which is
@@ -42,9 +41,8 @@ from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, 
 @dataclass
 class MapJob:
     """One mapping call: frame position ``k``, its images ``[H, W, 3]`` / ``[H, W]`` on the device, its tracked
-    pose ``[7]``, whether it is the first-frame warm-up, whether it becomes a keyframe afterwards, its iterations
-    (0: ``mapping.iters``; the schedule's ``need_gap_iters`` for a routine refresh) and, in parallel mode, its lag
-    (0: the mode's; a larger one lets the tracker read the map it leaves from frame ``k + lag`` on)."""
+    pose ``[7]``, whether it is the first-frame warm-up, whether it becomes a keyframe afterwards, and its iterations
+    (0: ``mapping.iters``; the schedule's ``need_gap_iters`` for a routine refresh)."""
 
     k: int
     color: torch.Tensor
@@ -53,7 +51,6 @@ class MapJob:
     first: bool
     keyframe: bool
     iters: int = 0
-    lag: int = 0
 
 
 @dataclass
@@ -149,19 +146,19 @@ class MapWorker:
         return MapDone(job, res, reply["seconds"], snapshot)
 
     def submit(self, job: MapJob) -> None:
-        """Queue a call (run it now, in sequential mode), due at frame ``k + lag`` (the job's where larger)."""
-        due = job.k + max(self.lag, job.lag if self.parallel else 0)
+        """Queue a call (run it now, in sequential mode)."""
         if self.process is not None:
             if not self.process.started:
                 self.process.start(self.scene, self.keyframes, self.gen, self.moments)
-            self._queue.append((due, self.process.submit(job)))
+            self._queue.append((job.k, self.process.submit(job)))
         elif self.parallel:
-            self._queue.append((due, self._pool.submit(self._run, job)))
+            self._queue.append((job.k, self._pool.submit(self._run, job)))
         else:
-            self._queue.append((due, self._run(job)))
+            self._queue.append((job.k, self._run(job)))
 
-    def _collect(self, n: int) -> list[MapDone]:
-        ready, self._queue = self._queue[:n], self._queue[n:]
+    def _collect(self, upto: int | None) -> list[MapDone]:
+        ready = [(k, f) for k, f in self._queue if upto is None or k <= upto]
+        self._queue = [(k, f) for k, f in self._queue if not (upto is None or k <= upto)]
         out = []
         for _, f in ready:
             if isinstance(f, MapDone):
@@ -179,31 +176,30 @@ class MapWorker:
                 d.snapshot = None
         return out
 
-    def _due(self, j: int) -> int:
-        """How many queued calls frame ``j`` takes: up to the last one due by ``j`` (the calls run in order, so the
-        ones before it are finished by then too), and the warm-up whatever its lag."""
-        n = max((i + 1 for i, (due, _) in enumerate(self._queue) if due <= j), default=0)
-        return max(n, 1) if not self._applied_any and self._queue else n
+    def _upto(self, j: int) -> int:
+        upto = j - self.lag
+        return max(upto, self._queue[0][0]) if not self._applied_any and self._queue else upto
 
     def busy(self, j: int) -> bool:
         """Whether :meth:`sync` of frame ``j`` would wait now: a call it finishes is still running."""
-        return any(not (isinstance(f, MapDone) or f.done()) for _, f in self._queue[:self._due(j)])
+        upto = self._upto(j)
+        return any(not (isinstance(f, MapDone) or f.done()) for k, f in self._queue if k <= upto)
 
     def sync(self, j: int, idle=None) -> list[MapDone]:
-        """Before tracking frame ``j``: finish the calls due by ``j`` (waiting if needed), make the
+        """Before tracking frame ``j``: finish the calls of frames ``<= j - lag`` (waiting if needed), make the
         tracker's map the one the last of them left, and return them in order so the loop can apply their
         results. The first call (the warm-up) is always waited for: nothing is tracked against an empty map.
         ``idle(j, busy)``: work to do first while ``busy()`` says the wait has not ended (reading frames ahead,
         :meth:`slam.engine.frames.FrameSource.read_while`); it cannot change what the calls compute."""
         if idle is not None:
             idle(j, lambda: self.busy(j))
-        out = self._collect(self._due(j))
+        out = self._collect(self._upto(j))
         self._applied_any = self._applied_any or bool(out)
         return out
 
     def drain(self) -> list[MapDone]:
         """Finish every queued call; the tracker's map then equals the mapper's. Returns the calls finished."""
-        out = self._collect(len(self._queue))
+        out = self._collect(None)
         if self.parallel:
             with torch.no_grad():
                 self.track_scene.load_state_dict(self.scene.state_dict())
@@ -242,9 +238,9 @@ class MapWorker:
         (parallel mode; None inline, where it is the scene) and the map's carried Adam state (None if none). Plain
         tensors and numbers."""
         pending = []
-        for due, item in self._queue:
+        for _, item in self._queue:
             done = item if isinstance(item, MapDone) else item.result()
-            pending.append({"k": done.job.k, "due": due, "pose": done.job.pose.cpu(), "first": done.job.first,
+            pending.append({"k": done.job.k, "pose": done.job.pose.cpu(), "first": done.job.first,
                             "keyframe": done.job.keyframe, "seconds": done.seconds,
                             "result": {"pose": done.result.pose.cpu(), "window": list(done.result.window),
                                        "loss": float(done.result.loss), "ok": bool(done.result.ok),
@@ -274,8 +270,7 @@ class MapWorker:
             job = MapJob(p["k"], None, None, p["pose"], p["first"], p["keyframe"])
             r = p["result"]
             res = MapResult(r["pose"], r["window"], r["loss"], r["ok"], r["skipped"])
-            due = p.get("due", p["k"] + self.lag)  # a checkpoint from before per-call lags: the mode's
-            self._queue.append((due, MapDone(job, res, p["seconds"], p["snapshot"])))
+            self._queue.append((p["k"], MapDone(job, res, p["seconds"], p["snapshot"])))
         if self.process is not None and self.process.started:  # its replica is another map: the next call starts anew
             self.process.close()  # (a child spawned but not given a map yet is kept, its imports and rehearsal done)
 

@@ -5,15 +5,13 @@ depth) when the map is young (the first ``need_young`` frames), when ``need_max_
 last mapped one, or when the map explains the frame worse than it explained the recent ones: its tracking loss is
 above ``need_loss_factor`` times the median of the last :data:`HISTORY` tracked frames' (new space in view, or a
 map that has fallen behind the camera). The first frame with depth and the last frame are always mapped. A call
-made only because of the gap (a routine refresh) takes ``need_gap_iters`` iterations, and in parallel mode the
-tracker first reads its map ``need_gap_lag`` frames after it, where those are set. Every
+made only because of the gap (a routine refresh) takes ``need_gap_iters`` iterations where that is set. Every
 input is fixed by the frame numbers and the schedule, never by timing, so both loop modes stay deterministic.
 """
 
 from __future__ import annotations
 
 import statistics
-from dataclasses import dataclass
 
 from slam.engine.state import RunState
 
@@ -44,19 +42,10 @@ def mapping_reason(k: int, st: RunState, mapping, n_frames: int) -> str | None:
     return "gap" if k - st.last_mapped >= mapping.need_max_gap else None
 
 
-@dataclass(frozen=True)
-class Call:
-    """A mapping call the schedule asks for: its ``iters`` (0: ``mapping.iters``) and its ``lag`` (0: the loop
-    mode's), both set for a routine refresh only (``need_gap_iters``, ``need_gap_lag``)."""
-
-    iters: int = 0
-    lag: int = 0
-
-
-def mapping_call(k: int, st: RunState, mapping, n_frames: int) -> Call | None:
-    """None when trusted frame position ``k`` (with depth) is not mapped, else its :class:`Call`: a call made only
-    because ``need_max_gap`` frames passed takes ``need_gap_iters`` and ``need_gap_lag``, every other the defaults."""
+def call_iters(k: int, st: RunState, mapping, n_frames: int) -> int | None:
+    """None when trusted frame position ``k`` (with depth) is not mapped, else its call's iterations: 0 (the call
+    takes ``mapping.iters``), or ``need_gap_iters`` for a call made only because ``need_max_gap`` frames passed."""
     reason = mapping_reason(k, st, mapping, n_frames)
     if reason is None:
         return None
-    return Call(mapping.need_gap_iters, mapping.need_gap_lag) if reason == "gap" else Call()
+    return mapping.need_gap_iters if reason == "gap" else 0

@@ -34,7 +34,7 @@ from slam.engine.recovery import TrackInput
 from slam.engine.rehearsal import preload
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
-from slam.engine.schedule import mapping_call
+from slam.engine.schedule import call_iters
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
@@ -175,13 +175,12 @@ class SLAM:
         self._grow(k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
         first = not st.initialized
-        call = mapping_call(k, st, cfg.mapping, len(self.indices))
-        if call is None:
+        iters = call_iters(k, st, cfg.mapping, len(self.indices))
+        if iters is None:
             return False
         st.last_mapped = k
         self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first,
-                                  keyframe=first or k % cfg.mapping.keyframe_every == 0, iters=call.iters,
-                                  lag=call.lag))
+                                  keyframe=first or k % cfg.mapping.keyframe_every == 0, iters=iters))
         st.initialized = True
         return True
 

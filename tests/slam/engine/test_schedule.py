@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from slam.engine.schedule import Call, mapping_call, mapping_due
+from slam.engine.schedule import call_iters, mapping_due
 from slam.engine.state import RunState
 
 
@@ -28,18 +28,17 @@ def test_by_need_maps_while_young_after_a_gap_and_when_the_map_explains_a_frame_
     assert mapping_due(99, _state(steady + [1.0], 98), m, 100)  # the last frame
 
 
-def test_a_routine_refresh_takes_its_own_iterations_and_lag_and_every_other_call_the_defaults():
+def test_a_routine_refresh_takes_need_gap_iters_and_every_other_call_mapping_iters():
     m = SimpleNamespace(schedule="by_need", every_frame=1, need_young=5, need_max_gap=3, need_loss_factor=1.2,
-                        need_gap_iters=2, need_gap_lag=3)
+                        need_gap_iters=2)
     steady = [1.0] * 10
-    full = Call(0, 0)
-    assert mapping_call(4, _state(steady[:5], 3), m, 100) == full  # young
-    assert mapping_call(10, _state(steady + [1.0], 7), m, 100) == Call(2, 3)  # only the gap: a routine refresh
-    assert mapping_call(10, _state(steady + [1.3], 7), m, 100) == full  # the gap and new space: a full call
-    assert mapping_call(10, _state(steady + [1.3], 9), m, 100) == full
-    assert mapping_call(99, _state(steady + [1.0], 96), m, 100) == full  # the last frame
-    assert mapping_call(10, _state(steady + [1.1], 9), m, 100) is None
-    assert mapping_call(3, _state([], -1, initialized=False), m, 100) == full  # the first frame with depth
+    assert call_iters(4, _state(steady[:5], 3), m, 100) == 0  # young
+    assert call_iters(10, _state(steady + [1.0], 7), m, 100) == 2  # only the gap: a routine refresh
+    assert call_iters(10, _state(steady + [1.3], 7), m, 100) == 0  # the gap and new space: a full call
+    assert call_iters(10, _state(steady + [1.3], 9), m, 100) == 0
+    assert call_iters(99, _state(steady + [1.0], 96), m, 100) == 0  # the last frame
+    assert call_iters(10, _state(steady + [1.1], 9), m, 100) is None
+    assert call_iters(3, _state([], -1, initialized=False), m, 100) == 0  # the first frame with depth
 
 
 def test_the_loop_gives_each_call_its_iterations(tiny_seq):
