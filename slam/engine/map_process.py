@@ -211,7 +211,7 @@ class MapProcess:
         call = _Call(self, job)
         images = pack_state({"color": job.color, "depth": job.depth})
         self._send("map", (job.k, images["color"], images["depth"], job.pose.cpu(), job.first, job.keyframe,
-                   job.iters))
+                           job.iters))
         self._waiting.append(call)
         return call
 
