@@ -1,6 +1,8 @@
 """What the tests of benchmarks/ share: loading a benchmark script (not a package) as a module."""
 
+import contextlib
 import importlib.util
+import sys
 from pathlib import Path
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
@@ -13,3 +15,13 @@ def load_script(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+@contextlib.contextmanager
+def script_on_path(name: str):
+    """``load_script(name)`` with ``BENCHMARKS`` on ``sys.path`` (its sibling modules importable) while in use."""
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        yield load_script(name)
+    finally:
+        sys.path.remove(str(BENCHMARKS))

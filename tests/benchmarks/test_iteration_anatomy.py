@@ -3,21 +3,17 @@ are taken off again afterwards), its graph walk counts what one iteration builds
 by their innermost frame."""
 
 import gzip
-import sys
-from pathlib import Path
 
 import pytest
 
-from tests.benchmarks.conftest import BENCHMARKS, load_script
+from tests.benchmarks.conftest import script_on_path
 from tests.slam.conftest import TINY, tiny_seq  # noqa: F401 - the tiny synthetic sequence fixture
 
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(BENCHMARKS))
-    module = load_script("iteration_anatomy")
-    yield module
-    sys.path.remove(str(BENCHMARKS))
+    with script_on_path("iteration_anatomy") as module:
+        yield module
 
 
 def test_every_stage_of_a_mapping_call_is_timed_and_the_graph_walked(bench, tiny_seq):

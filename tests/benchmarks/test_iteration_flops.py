@@ -2,24 +2,17 @@
 live call path (a query under autograd is counted forward and backward, a no-grad one forward only), and the
 counts equal the closed forms of a small Six-axis field."""
 
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
 import tdfields
-from tests.benchmarks.conftest import load_script
-
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+from tests.benchmarks.conftest import script_on_path
 
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(BENCH))
-    module = load_script("iteration_flops")
-    yield module
-    sys.path.remove(str(BENCH))
+    with script_on_path("iteration_flops") as module:
+        yield module
 
 
 def test_counts_a_six_axis_query(bench):
