@@ -18,16 +18,11 @@ from slam.engine.state import RunState
 HISTORY = 10
 
 
-def mapping_due(k: int, st: RunState, mapping, n_frames: int) -> bool:
-    """Whether trusted frame position ``k`` (with depth) is mapped; ``mapping``: the ``mapping`` config, ``st``: the
-    run state after frame ``k`` was tracked and recorded."""
-    return mapping_reason(k, st, mapping, n_frames) is not None
-
-
 def mapping_reason(k: int, st: RunState, mapping, n_frames: int) -> str | None:
     """Why trusted frame position ``k`` (with depth) is mapped, or None when it is not: ``"first"`` (the first frame
     with depth), ``"last"``, ``"schedule"`` (``every_frame``), ``"young"``, ``"loss"`` (its tracking loss is above
-    ``need_loss_factor`` x the recent median) or ``"gap"`` (``need_max_gap`` frames since the last mapped one)."""
+    ``need_loss_factor`` x the recent median) or ``"gap"`` (``need_max_gap`` frames since the last mapped one).
+    ``mapping``: the ``mapping`` config; ``st``: the run state after frame ``k`` was tracked and recorded."""
     if not st.initialized:
         return "first"
     if k == n_frames - 1:

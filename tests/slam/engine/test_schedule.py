@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from slam.engine.schedule import call_iters, mapping_due
+from slam.engine.schedule import call_iters, mapping_reason
 from slam.engine.state import RunState
 
 
@@ -14,18 +14,19 @@ def _state(losses, last_mapped, initialized=True):
 
 def test_every_frame_maps_the_fixed_schedule_the_first_and_the_last():
     m = SimpleNamespace(schedule="every_frame", every_frame=4)
-    assert [k for k in range(12) if mapping_due(k, _state([1.0] * (k + 1), 0), m, 12)] == [0, 4, 8, 11]
-    assert mapping_due(5, _state([1.0] * 6, -1, initialized=False), m, 12)  # the first frame with depth
+    reasons = [(k, mapping_reason(k, _state([1.0] * (k + 1), 0), m, 12)) for k in range(12)]
+    assert [(k, r) for k, r in reasons if r] == [(0, "schedule"), (4, "schedule"), (8, "schedule"), (11, "last")]
+    assert mapping_reason(5, _state([1.0] * 6, -1, initialized=False), m, 12) == "first"
 
 
 def test_by_need_maps_while_young_after_a_gap_and_when_the_map_explains_a_frame_worse():
     m = SimpleNamespace(schedule="by_need", every_frame=1, need_young=5, need_max_gap=3, need_loss_factor=1.2)
     steady = [1.0] * 10
-    assert mapping_due(4, _state(steady[:5], 3), m, 100)  # young
-    assert not mapping_due(10, _state(steady + [1.1], 9), m, 100)  # 1.1 < 1.2 x median
-    assert mapping_due(10, _state(steady + [1.3], 9), m, 100)  # the map explains this frame worse: new space
-    assert mapping_due(10, _state(steady + [1.0], 7), m, 100)  # three frames since the last mapped one
-    assert mapping_due(99, _state(steady + [1.0], 98), m, 100)  # the last frame
+    assert mapping_reason(4, _state(steady[:5], 3), m, 100) == "young"
+    assert mapping_reason(10, _state(steady + [1.1], 9), m, 100) is None  # 1.1 < 1.2 x median
+    assert mapping_reason(10, _state(steady + [1.3], 9), m, 100) == "loss"  # the map explains it worse: new space
+    assert mapping_reason(10, _state(steady + [1.0], 7), m, 100) == "gap"  # three frames since the last mapped one
+    assert mapping_reason(99, _state(steady + [1.0], 98), m, 100) == "last"
 
 
 def test_a_routine_refresh_takes_need_gap_iters_and_every_other_call_mapping_iters():
