@@ -249,7 +249,6 @@ def main(argv=None) -> int:
     # ---- 1b. the presets' frame time on this machine, the device against its own CPU, seed 0 (issue 21 asks how
     # fast the fast preset is where the paper measured): tum/fr1_rpy-cpu-fast on cuda with the reference path and with
     # the Triton field kernel, on the host CPU, and the Adam preset tum/fr1_rpy-cpu on cuda and on the CPU
-    pdata, pover = (str(seq), ["--config", "synthetic", *tiny]) if args.smoke else (args.data, [])
     for name, preset, device, backend in (("fast-cuda", "tum/fr1_rpy-cpu-fast", dev, "torch"),
                                           ("fast-cuda-triton", "tum/fr1_rpy-cpu-fast", dev, "triton"),
                                           ("fast-cpu", "tum/fr1_rpy-cpu-fast", "cpu", "auto"),
@@ -257,14 +256,12 @@ def main(argv=None) -> int:
                                           ("adam-cpu", "tum/fr1_rpy-cpu", "cpu", "auto")):
         if args.smoke and name in ("fast-cuda-triton", "adam-cuda"):
             continue  # the same as fast-cpu / adam-cpu on a CPU
-        cfg = pover[:2] if args.smoke else ["--config", preset]
-        ran = steps.run(f"preset-{name}", [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", *cfg, "--device",
-                                           device, "--data", pdata, "--out", str(work / f"preset_{name}"),
-                                           *pover[2:], "seed=0"], 120, dict(env, TDFIELDS_BACKEND=backend))
-        _keep(ran, work / f"preset_{name}" / "metrics.json", work / f"preset_{name}.json")
-        if ran["returncode"] == 0 and (m := _read_json(work / f"preset_{name}.json")):
-            preset_rows.append({"run": name, "preset": "synthetic" if args.smoke else preset, "device": device,
-                                "backend": backend,
+        preset, data, over = ("synthetic", str(seq), tiny) if args.smoke else (preset, args.data, [])
+        ran = steps.run(f"preset-{name}", [py, "-m", "slam.cli", "run", "--quiet", "--no-mesh", "--config", preset,
+                                           "--device", device, "--data", data, "--out", str(work / f"preset_{name}"),
+                                           *over, "seed=0"], 120, dict(env, TDFIELDS_BACKEND=backend))
+        if ran["returncode"] == 0 and (m := _read_json(work / f"preset_{name}" / "metrics.json")):
+            preset_rows.append({"run": name, "preset": preset, "device": device, "backend": backend,
                                 "frames": m["num_frames"], "fpt_s": m["fpt_s"], "ate_rmse_cm": 100 * m["ate_rmse_m"],
                                 "mapping_calls": m.get("mapping_calls"), "frames_lost": m.get("frames_lost")})
         summarize(info, steps.done, out, args.smoke, preset_rows)
