@@ -106,8 +106,9 @@ class RenderingConfig:
     perturb: bool = True
     color_cutoff: float = num(0.0, lo=0, hi=1, hi_open=True)
     # ours (slam/core/fused_render.py): compositing, the colour sum and the five loss terms as numba kernels on the
-    # CPU (the PyTorch ops elsewhere, and with TDFIELDS_BACKEND=torch); same values to a few ulp. Off: 2-6 % off a
-    # call alone, no measurable change of the loop's frame time (docs/benchmarks.md, "The fused render tail")
+    # CPU, Triton kernels on CUDA with TDFIELDS_BACKEND=triton (the PyTorch ops otherwise, and with
+    # TDFIELDS_BACKEND=torch); same values to a few ulp. Off: 2-6 % off a call alone, no measurable change of the
+    # loop's frame time at the Adam preset (docs/benchmarks.md, "The fused render tail"); on in tum/fr1_rpy-cpu-fast
     fused: bool = False
 
 

@@ -1,26 +1,46 @@
 """The fused render tail (``rendering.fused``): ESLAM's compositing, the colour sum and the five loss terms as three
-autograd Functions, each one numba kernel per direction (:mod:`slam.core.render_kernels`), with the pure-PyTorch path of
-:mod:`slam.core.rendering` and :mod:`slam.core.losses` as the reference they are tested against.
+autograd Functions, each one kernel per direction, with the pure-PyTorch path of :mod:`slam.core.rendering` and
+:mod:`slam.core.losses` as the reference they are tested against. The kernels are numba's on the CPU
+(:mod:`slam.core.render_kernels`) and Triton's on CUDA (:mod:`slam.core.render_kernels_triton`), the same
+arithmetic in the same order per ray.
 
-:func:`eligible` decides per call: CPU tensors of one float dtype, the tdfields backend allowing fused kernels
-(:func:`tdfields.kernels.use_fused`; ``TDFIELDS_BACKEND=torch`` selects the reference everywhere), and sample and
-measured depths without gradient (the tail differentiates the SDF, the colours, ``beta`` and the rendered depth and
-colour, which is all the SLAM loop needs). First derivatives only: a second derivative raises an error.
+:func:`eligible` decides per call, with the backend rules of the field kernels (:mod:`tdfields.kernels.dispatch`):
+CPU tensors of one float dtype take the numba kernels where the backend allows fused kernels
+(:func:`tdfields.kernels.use_fused`); CUDA tensors take the Triton kernels only with ``TDFIELDS_BACKEND=triton``
+(:func:`tdfields.kernels.use_triton`: opt-in until a GPU run has timed them against the reference, as for the
+field kernel; the tests run them in Triton's interpreter on CPU tensors); ``TDFIELDS_BACKEND=torch`` selects the
+reference everywhere. Sample and measured depths must be without gradient (the tail differentiates the SDF, the
+colours, ``beta`` and the rendered depth and colour, which is all the SLAM loop needs). First derivatives only: a
+second derivative raises an error.
 """
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
-from tdfields.kernels import use_fused
+from tdfields.kernels import use_fused, use_triton
 
 
-def _kernels():
-    from slam.core import render_kernels  # numba compiles (or loads from its cache) on first use only
+def _launch(backend: str, name: str, *args: torch.Tensor) -> None:
+    """Run kernel ``name`` of ``backend`` (``"numba"``: on numpy views of the CPU tensors; ``"triton"``: on the
+    tensors), writing its outputs in place. The modules are imported on first use only (numba compiles or loads
+    from its cache, Triton compiles per device)."""
+    if backend == "numba":
+        from slam.core import render_kernels
 
-    return render_kernels
+        getattr(render_kernels, name)(*(a.numpy() for a in args))
+    else:
+        from slam.core import render_kernels_triton
+
+        getattr(render_kernels_triton, name)(*args)
+
+
+def _backend(*tensors: torch.Tensor) -> str | None:
+    """``"numba"``, ``"triton"`` or None (the reference) for these tensors (see the module docstring)."""
+    if use_fused(*tensors):
+        return "numba"
+    return "triton" if use_triton(*tensors) else None
 
 
 def _host(t: torch.Tensor, dtype: torch.dtype | None = None) -> torch.Tensor:
@@ -31,11 +51,11 @@ def _host(t: torch.Tensor, dtype: torch.dtype | None = None) -> torch.Tensor:
 
 
 def eligible(*tensors: torch.Tensor, constant: tuple[torch.Tensor, ...] = ()) -> bool:
-    """Whether the fused tail runs: ``tensors`` and the ``constant`` ones (which must not need a gradient) on the
-    CPU in one float dtype, the backend allowing fused kernels, and no empty batch."""
+    """Whether the fused tail runs: ``tensors`` and the ``constant`` ones (which must not need a gradient) in one
+    float dtype on one device whose kernel the backend allows (see the module docstring), and no empty batch."""
     if any(t.requires_grad for t in constant) or any(t.numel() == 0 for t in tensors):
         return False
-    return use_fused(*tensors, *constant)
+    return _backend(*tensors, *constant) is not None
 
 
 class _Composite(torch.autograd.Function):
@@ -49,7 +69,8 @@ class _Composite(torch.autograd.Function):
         sig = torch.sigmoid(-b * s)
         alpha = 1.0 - torch.exp(-(b * sig))
         weights, depth = torch.empty_like(s), s.new_empty(s.shape[0])
-        _kernels().composite_forward(alpha.numpy(), zz.numpy(), weights.numpy(), depth.numpy())
+        ctx.backend = _backend(s)
+        _launch(ctx.backend, "composite_forward", alpha, zz, weights, depth)
         ctx.save_for_backward(alpha, sig, b, s, zz)
         ctx.beta_meta = (beta.shape, beta.dtype)
         return weights, depth
@@ -62,8 +83,7 @@ class _Composite(torch.autograd.Function):
         gw = s.new_zeros(R, N) if grad_weights is None else _host(grad_weights, s.dtype)
         gd = s.new_zeros(R) if grad_depth is None else _host(grad_depth, s.dtype)
         grad_sdf, grad_beta = torch.empty_like(s), s.new_empty(R)
-        _kernels().composite_backward(alpha.numpy(), sig.numpy(), b.numpy(), s.numpy(), zz.numpy(), gw.numpy(),
-                                      gd.numpy(), grad_sdf.numpy(), grad_beta.numpy())
+        _launch(ctx.backend, "composite_backward", alpha, sig, b, s, zz, gw, gd, grad_sdf, grad_beta)
         shape, dtype = ctx.beta_meta
         beta_grad = grad_beta.sum().reshape(shape).to(dtype) if ctx.needs_input_grad[1] else None
         return grad_sdf, beta_grad, None
@@ -76,7 +96,8 @@ class _Color(torch.autograd.Function):
     def forward(ctx, weights, rgb):
         w, c = _host(weights), _host(rgb, weights.dtype)
         color = w.new_empty(w.shape[0], 3)
-        _kernels().color_forward(w.numpy(), c.numpy(), color.numpy())
+        ctx.backend = _backend(w)
+        _launch(ctx.backend, "color_forward", w, c, color)
         ctx.save_for_backward(w, c)
         return color
 
@@ -85,8 +106,7 @@ class _Color(torch.autograd.Function):
     def backward(ctx, grad_color):
         w, c = ctx.saved_tensors
         grad_weights, grad_rgb = torch.empty_like(w), torch.empty_like(c)
-        _kernels().color_backward(w.numpy(), c.numpy(), _host(grad_color, w.dtype).numpy(), grad_weights.numpy(),
-                                  grad_rgb.numpy())
+        _launch(ctx.backend, "color_backward", w, c, _host(grad_color, w.dtype), grad_weights, grad_rgb)
         return grad_weights, grad_rgb
 
 
@@ -98,8 +118,9 @@ class _Loss(torch.autograd.Function):
     def forward(ctx, sdf, rendered_depth, rendered_color, z, depth, color, rows, consts):
         s = _host(sdf)
         args = (s, _host(z), _host(depth), _host(rendered_depth), _host(rendered_color), _host(color))
-        sums, counts = s.new_empty(s.shape[0], 5), torch.empty(s.shape[0], 5, dtype=torch.int64)
-        _kernels().loss_forward(*(a.numpy() for a in args), rows, consts, sums.numpy(), counts.numpy())
+        sums, counts = s.new_empty(s.shape[0], 5), torch.empty(s.shape[0], 5, dtype=torch.int32, device=s.device)
+        ctx.backend = _backend(s)
+        _launch(ctx.backend, "loss_forward", *args, rows, consts, sums, counts)
         count = counts.sum(0).clamp(min=1).to(s.dtype)
         ctx.save_for_backward(*args, count)
         ctx.rows_consts = (rows, consts)
@@ -112,8 +133,7 @@ class _Loss(torch.autograd.Function):
         s = args[0]
         scale = (_host(grad_terms, s.dtype) / count).contiguous()
         grad_sdf, grad_depth, grad_color = torch.empty_like(s), s.new_empty(s.shape[0]), s.new_empty(s.shape[0], 3)
-        _kernels().loss_backward(*(a.numpy() for a in args), *ctx.rows_consts, scale.numpy(), grad_sdf.numpy(),
-                                 grad_depth.numpy(), grad_color.numpy())
+        _launch(ctx.backend, "loss_backward", *args, *ctx.rows_consts, scale, grad_sdf, grad_depth, grad_color)
         return grad_sdf, grad_depth, grad_color, None, None, None, None, None
 
 
@@ -144,5 +164,5 @@ def loss_terms(sdf: torch.Tensor, z: torch.Tensor, rendered_depth: torch.Tensor,
     use = depth_rows.to(torch.uint8) + 1
     if rows is not None:
         use = use * rows.to(torch.uint8)
-    consts = np.array([truncation, 0.4 * truncation], dtype=sdf.detach().numpy().dtype)
-    return _Loss.apply(sdf, rendered_depth, rendered_color, z, depth, color, use.contiguous().numpy(), consts)
+    consts = torch.tensor([truncation, 0.4 * truncation], dtype=sdf.dtype, device=sdf.device)
+    return _Loss.apply(sdf, rendered_depth, rendered_color, z, depth, color, use.contiguous(), consts)

@@ -14,13 +14,13 @@ WEIGHTS = LossWeights(fs=10.0, center=200.0, tail=10.0, depth=1.0, color=5.0)  #
 T = 0.05
 
 
-def _rays(R=120, dtype=torch.float32, seed=0):
+def _rays(R=120, dtype=torch.float32, seed=0, device="cpu"):
     g = torch.Generator().manual_seed(seed)
     D = torch.rand(R, generator=g, dtype=dtype) + 1.0
     D[:10] = 0.0  # rays without depth: the colour term only
     dirs = torch.cat((torch.rand(R, 2, generator=g, dtype=dtype) - 0.5, torch.ones(R, 1, dtype=dtype)), 1)
     color = torch.rand(R, 3, generator=g, dtype=dtype)
-    return D, dirs, color
+    return D.to(device), dirs.to(device), color.to(device)
 
 
 class _Scene(torch.nn.Module):
@@ -29,7 +29,7 @@ class _Scene(torch.nn.Module):
     def __init__(self, dtype):
         super().__init__()
         self.head = torch.nn.Linear(3, 4).to(dtype)
-        self.aabb = torch.tensor([[-3.0, 3.0], [-3.0, 3.0], [-1.0, 5.0]], dtype=dtype)
+        self.register_buffer("aabb", torch.tensor([[-3.0, 3.0], [-3.0, 3.0], [-1.0, 5.0]], dtype=dtype))
 
     def sdf(self, p):
         return torch.tanh((1.5 - p[:, 2]) / T * 0.2 + 0.1 * self.head(p)[:, 0])
@@ -38,16 +38,19 @@ class _Scene(torch.nn.Module):
         return torch.sigmoid(self.head(p)[:, 1:])
 
 
-def _loss_and_grads(fused, cutoff, dtype, rows=None):
-    D, dirs_cam, color = _rays(dtype=dtype)
+def _loss_and_grads(fused, cutoff, dtype, rows=None, device="cpu", R=120):
+    """The loss, its parts, the gradients to the pose, beta and the head, and the render of ``R`` rays through a
+    textured wall (the reference with ``fused=False``)."""
+    D, dirs_cam, color = _rays(R=R, dtype=dtype, device=device)
     scene = _Scene(dtype)
     torch.manual_seed(0)
     scene.head.reset_parameters()
-    beta = torch.tensor(10.0, dtype=dtype, requires_grad=True)
-    c2w = torch.eye(4, dtype=dtype).requires_grad_()
+    scene.to(device)
+    beta = torch.tensor(10.0, dtype=dtype, device=device, requires_grad=True)
+    c2w = torch.eye(4, dtype=dtype, device=device).requires_grad_()
     origins, dirs = camera_rays(c2w, dirs_cam)
-    out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, beta, T, 12, 6, scene.aabb, True,
-                      torch.Generator().manual_seed(3), cutoff, fused)
+    gen = torch.Generator(device=device).manual_seed(3)
+    out = render_rays(origins, dirs, D, scene.sdf, scene.rgb, beta, T, 12, 6, scene.aabb, True, gen, cutoff, fused)
     loss, parts = total_loss(out.sdf, out.z, out.depth, out.color, D, color, T, WEIGHTS, rows=rows, fused=fused)
     grads = torch.autograd.grad(loss, [c2w, beta, *scene.head.parameters()])
     return loss, parts, grads, out

@@ -1,6 +1,7 @@
 """System-level tests on a tiny generated synthetic sequence: robustness, determinism, the e2e CLI run."""
 
 import json
+import os
 
 import pytest
 import torch
@@ -148,6 +149,44 @@ def test_fused_kernels_follow_the_reference_path_through_a_run(tiny_seq, represe
     torch.testing.assert_close(poses, ref_poses, rtol=0, atol=1e-4)
     for name, t in ref_map.items():
         torch.testing.assert_close(fused_map[name], t, rtol=1e-3, atol=1e-4, msg=name)
+
+
+@pytest.mark.parametrize("parallel", ["true", "false"])
+def test_the_triton_render_tail_follows_the_reference_path_through_a_run(tiny_seq, parallel, monkeypatch):
+    # the tail CUDA runs with TDFIELDS_BACKEND=triton, in the loop's call order (tracking, mapping with fused Adam
+    # and BA, both loop modes), against the pure-torch path. Here it runs in Triton's interpreter on CPU tensors,
+    # between numba's field kernels; the interpreter patches triton.language module-wide for each launch, so a lock
+    # keeps the two threads' launches from overlapping (compiled kernels need none), and 512 rays a block keep the
+    # interpreter's per-block cost down (the block size is the unit tests' concern).
+    import threading
+
+    from slam.core import fused_render, render_kernels_triton
+    from tdfields import kernels
+
+    if os.environ.get("TRITON_INTERPRET", "") in ("", "0") or not kernels.triton_available():
+        pytest.skip("the Triton tail runs on CPU tensors only in Triton's interpreter")
+    lock, launches, real = threading.Lock(), [], fused_render._launch
+
+    def launch(backend, name, *args):
+        with lock:
+            launches.append(backend)
+            real(backend, name, *args)
+
+    overrides = ["representation=lrslam", f"parallel={parallel}", "data.max_frames=4", "mapping.every_frame=1",
+                 "mapping.keyframe_every=1", "mapping.ba_min_keyframes=1", "rendering.fused=true"]
+    with kernels.use_backend("torch"):
+        ref = _system(tiny_seq, overrides)
+        ref.run(progress=False)
+    monkeypatch.setattr(fused_render, "_launch", launch)
+    monkeypatch.setattr(fused_render, "_backend", lambda *t: "triton" if kernels.use_fused(*t) else None)
+    monkeypatch.setattr(render_kernels_triton, "BLOCK", 512)
+    with kernels.use_backend("numba"):
+        s = _system(tiny_seq, overrides)
+        s.run(progress=False)
+    assert len(launches) > 50 and set(launches) == {"triton"}
+    torch.testing.assert_close(torch.stack(s.state.est), torch.stack(ref.state.est), rtol=0, atol=1e-4)
+    for name, t in ref.scene.state_dict().items():
+        torch.testing.assert_close(s.scene.state_dict()[name], t, rtol=1e-3, atol=1e-4, msg=name)
 
 
 def test_cuda_request_without_gpu_is_a_user_error():
