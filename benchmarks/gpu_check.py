@@ -8,7 +8,9 @@ others' time and a lease that ends early still returns what finished; the summar
    ``preset-*``: the presets' frame time and ATE on the excerpt, seed 0: ``tum/fr1_rpy-cpu-fast`` on the device with
    the reference path and with the Triton field kernel (``TDFIELDS_BACKEND``) and on this machine's CPU, and the
    Adam preset ``tum/fr1_rpy-cpu`` on the device and the CPU (the fast preset's frame time where the paper measured).
-2. ``cuda-tests``: the Triton kernel's tests compiled for the GPU (``TRITON_INTERPRET=0``).
+2. ``cuda-tests``: the Triton kernels' tests compiled for the GPU (``TRITON_INTERPRET=0``): the field query's and
+   the render tail's. ``render-tail``: the render tail alone, forward and backward, PyTorch ops against the Triton
+   kernels on the device at the loop's batch sizes (``benchmarks/render_tail_speed.py``).
 3. ``gn-tracker-every`` / ``-first``: the second-order tracker against Adam on the device
    (``benchmarks/gn_convergence.py --device``: time per evaluation / iteration, evaluations to 1 mm and 0.1 degree
    from known offsets on the synthetic room), with the normal equations' matrix at every evaluation and at a round's
@@ -147,6 +149,10 @@ def summarize(info: dict, steps: list[dict], out: Path, smoke: bool, presets: li
                 "adam_iterations_to_1mm_0.1deg": [c["adam_iters_to_1mm_0.1deg"] for c in g["cases"]]}
     if sc := _read_json(out / "slam_compare.json"):
         result["slam"] = sc["summary"]
+    if tail := _read_json(out / "render_tail_speed.json"):
+        result["render_tail"] = [{"size": r["size"], "reference_ms": r["median_ms"]["reference"],
+                                  "fused_ms": r["median_ms"]["fused"],
+                                  "largest_difference": max(r["max_abs_diff"].values())} for r in tail["sizes"]]
     if fs := _read_json(out / "field_speed_cuda.json"):
         result["field_speed"] = [{"name": b["name"], "median_ms": 1000 * b["stats"]["median"]}
                                  for b in fs["benchmarks"]]
@@ -173,6 +179,11 @@ def summarize(info: dict, steps: list[dict], out: Path, smoke: bool, presets: li
                          f"{g['gn_ms_per_evaluation']:.1f} | {g['gn_evaluations_to_1mm_0.1deg']} |")
         g = next(iter(result["gn_tracker"].values()))
         lines.append(f"| Adam | {g['adam_ms_per_iteration']:.1f} | {g['adam_iterations_to_1mm_0.1deg']} |")
+    if "render_tail" in result:
+        lines += ["", "| render tail, forward + backward | PyTorch ops ms | Triton ms | largest difference |",
+                  "|---|---|---|---|"]
+        lines += [f"| {r['size']} | {r['reference_ms']:.3f} | {r['fused_ms']:.3f} | {r['largest_difference']:.1e} |"
+                  for r in result["render_tail"]]
     if "field_speed" in result:
         lines += ["", "| case | median ms |", "|---|---|"]
         lines += [f"| {b['name']} | {b['median_ms']:.3f} |" for b in result["field_speed"]]
@@ -210,7 +221,8 @@ def main(argv=None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     log = out / "gpu_check.log"
     log.write_text("")
-    for name in ("gn_every.json", "gn_first.json", "slam_compare.json", "field_speed_cuda.json"):
+    for name in ("gn_every.json", "gn_first.json", "slam_compare.json", "field_speed_cuda.json",
+                 "render_tail_speed.json"):
         (out / name).unlink(missing_ok=True)  # an earlier run's, which a failed step would otherwise leave summarized
     info = device_info(args.smoke)
     info["commit"] = args.commit or _git_commit()
@@ -265,13 +277,19 @@ def main(argv=None) -> int:
                                 "frames": m["num_frames"], "fpt_s": m["fpt_s"], "ate_rmse_cm": 100 * m["ate_rmse_m"],
                                 "mapping_calls": m.get("mapping_calls"), "frames_lost": m.get("frames_lost")})
         summarize(info, steps.done, out, args.smoke, preset_rows)
-    # ---- 2. the Triton kernel's tests, compiled for the GPU
-    triton_tests = "tests/tdfields/kernels/triton/test_autograd.py"
+    # ---- 2. the Triton kernels' tests (the field query and the render tail), compiled for the GPU; then the render
+    # tail alone, the PyTorch ops against the Triton kernels on the device (smoke: in Triton's interpreter)
+    triton_tests = ["tests/tdfields/kernels/triton/test_autograd.py", "tests/slam/core/test_render_kernels_triton.py"]
     if args.smoke:
-        step("cuda-tests", [py, "-m", "pytest", "-q", "-x", triton_tests, "-k", "cp or triplane"], 300,
+        step("cuda-tests", [py, "-m", "pytest", "-q", "-x", *triton_tests, "-k", "cp or triplane or reference"], 300,
              dict(env, TRITON_INTERPRET="1"))
     else:
-        step("cuda-tests", [py, "-m", "pytest", "-q", triton_tests], 120, dict(env, TRITON_INTERPRET="0"))
+        step("cuda-tests", [py, "-m", "pytest", "-q", *triton_tests], 150, dict(env, TRITON_INTERPRET="0"))
+    ran = steps.run("render-tail", [py, "benchmarks/render_tail_speed.py", "--device", dev, "--out",
+                                    str(work / "tail"), *(["--smoke"] if args.smoke else [])], 90,
+                    dict(env, TDFIELDS_BACKEND="triton", TRITON_INTERPRET="1" if args.smoke else "0"))
+    _keep(ran, work / "tail" / "render_tail_speed.json", out / "render_tail_speed.json")
+    summarize(info, steps.done, out, args.smoke, preset_rows)
     # ---- 3. the second-order tracker against Adam on the device (smoke: 3 frames mapped, one test frame), with its
     # normal equations' matrix at every evaluation and at a round's first only (tracking.gn_hessian)
     gn = ["--frames", "3", "--test-frames", "3", "--offsets", "1.0", "--", "mapping.iters=3", "mapping.iters_first=5",
