@@ -26,6 +26,9 @@ def _launch(backend: str, name: str, *args: torch.Tensor) -> None:
     """Run kernel ``name`` of ``backend`` (``"numba"``: on numpy views of the CPU tensors; ``"triton"``: on the
     tensors), writing its outputs in place. The modules are imported on first use only (numba compiles or loads
     from its cache, Triton compiles per device)."""
+    if backend is None:
+        raise RuntimeError("the fused render tail cannot run on these tensors (dtype, device or TDFIELDS_BACKEND); "
+                           "check slam.core.fused_render.eligible first, or render with fused=False")
     if backend == "numba":
         from slam.core import render_kernels
 

@@ -129,6 +129,13 @@ def test_a_second_derivative_fails_loudly():
         g.sum().backward()
 
 
+def test_a_call_no_kernel_can_take_is_refused_in_words():
+    sdf, z = torch.rand(4, 3, dtype=torch.float16), torch.rand(4, 3, dtype=torch.float16)
+    assert not fused_render.eligible(sdf, constant=(z,))
+    with pytest.raises(RuntimeError, match="eligible"):
+        fused_render.composite(sdf, torch.tensor(10.0, dtype=torch.float16), z)
+
+
 def test_the_reference_runs_where_the_kernel_cannot():
     sdf = torch.rand(4, 3, requires_grad=True)
     z = torch.rand(4, 3)
