@@ -151,8 +151,12 @@ def test_fused_kernels_follow_the_reference_path_through_a_run(tiny_seq, represe
         torch.testing.assert_close(fused_map[name], t, rtol=1e-3, atol=1e-4, msg=name)
 
 
-@pytest.mark.parametrize("parallel", ["true", "false"])
-def test_the_triton_render_tail_follows_the_reference_path_through_a_run(tiny_seq, parallel, monkeypatch):
+# the fast preset's tracker (second-order, the matrix once a round) and carried map moments, in the other loop mode
+FAST_LEVERS = ["tracking.optimizer=gauss_newton", "tracking.gn_hessian=first", "mapping.optimizer_state=persistent"]
+
+
+@pytest.mark.parametrize("parallel,levers", [("true", []), ("false", FAST_LEVERS)])
+def test_the_triton_render_tail_follows_the_reference_path_through_a_run(tiny_seq, parallel, levers, monkeypatch):
     # the tail CUDA runs with TDFIELDS_BACKEND=triton, in the loop's call order (tracking, mapping with fused Adam
     # and BA, both loop modes), against the pure-torch path. Here it runs in Triton's interpreter on CPU tensors,
     # between numba's field kernels; the interpreter patches triton.language module-wide for each launch, so a lock
@@ -173,7 +177,7 @@ def test_the_triton_render_tail_follows_the_reference_path_through_a_run(tiny_se
             real(backend, name, *args)
 
     overrides = ["representation=lrslam", f"parallel={parallel}", "data.max_frames=4", "mapping.every_frame=1",
-                 "mapping.keyframe_every=1", "mapping.ba_min_keyframes=1", "rendering.fused=true"]
+                 "mapping.keyframe_every=1", "mapping.ba_min_keyframes=1", "rendering.fused=true", *levers]
     with kernels.use_backend("torch"):
         ref = _system(tiny_seq, overrides)
         ref.run(progress=False)
