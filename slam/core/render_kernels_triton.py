@@ -104,6 +104,15 @@ def _color_backward(weights, rgb, grad_color, grad_weights, grad_rgb, R, N, BLOC
 
 
 @triton.jit
+def _regions(zz, D, T, band_width, full):  # pragma: no cover - compiled
+    """``(front, centre, tail)`` of samples at depths ``zz`` on rays of measured depth ``D`` that take every term
+    (``full``): free space ``zz < D - T``, the centre ``|zz - D| < band_width``, the rest of ``|zz - D| <= T``
+    (:func:`slam.core.render_kernels._regions`)."""
+    off = tl.abs(zz - D)
+    return full & (zz < D - T), full & (off < band_width), full & (off >= band_width) & (off <= T)
+
+
+@triton.jit
 def _loss_forward(sdf, z, depth, rendered_depth, rendered_color, color, rows, consts, sums, counts, R, N,
                   BLOCK: tl.constexpr):  # pragma: no cover - compiled
     r = (tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)).to(tl.int64)
@@ -128,10 +137,7 @@ def _loss_forward(sdf, z, depth, rendered_depth, rendered_color, color, rows, co
     for n in range(N):
         s = tl.load(sdf + r * N + n, mask=m, other=0.0)
         zz = tl.load(z + r * N + n, mask=m, other=0.0)
-        off = tl.abs(zz - D)
-        front = full & (zz < D - T)
-        centre = full & (off < band_width)
-        tail = full & (off >= band_width) & (off <= T)
+        front, centre, tail = _regions(zz, D, T, band_width, full)
         err = zz + s * T - D
         s_fs += tl.where(front, (s - 1.0) * (s - 1.0), 0.0)
         s_c += tl.where(centre, err * err, 0.0)
@@ -175,10 +181,7 @@ def _loss_backward(sdf, z, depth, rendered_depth, rendered_color, color, rows, c
     for n in range(N):
         s = tl.load(sdf + r * N + n, mask=m, other=0.0)
         zz = tl.load(z + r * N + n, mask=m, other=0.0)
-        off = tl.abs(zz - D)
-        front = full & (zz < D - T)
-        centre = full & (off < band_width)
-        tail = full & (off >= band_width) & (off <= T)
+        front, centre, tail = _regions(zz, D, T, band_width, full)
         g = tl.where(front, w_fs * 2.0 * (s - 1.0), 0.0)
         band = tl.where(centre, w_c, tl.where(tail, w_t, 0.0))
         g += tl.where(centre | tail, band * 2.0 * (zz + s * T - D) * T, 0.0)

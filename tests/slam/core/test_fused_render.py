@@ -60,12 +60,18 @@ def _loss_and_grads(fused, cutoff, dtype, rows=None, device="cpu", R=120):
 @pytest.mark.parametrize("cutoff", [0.0, 1e-3])
 def test_render_and_loss_match_the_reference_to_rounding(dtype, tol, cutoff):
     rows = torch.rand(120, generator=torch.Generator().manual_seed(1)) > 0.2  # the tracker's inliers
-    ref_loss, ref_parts, ref_grads, ref_out = _loss_and_grads(False, cutoff, dtype, rows)
-    loss, parts, grads, out = _loss_and_grads(True, cutoff, dtype, rows)
+    assert_matches_reference(_loss_and_grads(True, cutoff, dtype, rows), _loss_and_grads(False, cutoff, dtype, rows),
+                             tol)
+
+
+def assert_matches_reference(got, ref, tol):
+    """Two :func:`_loss_and_grads` results agree: the loss and its parts to ``tol`` relative, every gradient the
+    loop takes (the pose, beta, the head) and the render to ``10 tol`` of their largest value."""
+    (loss, parts, grads, out), (ref_loss, ref_parts, ref_grads, ref_out) = got, ref
     assert loss.item() == pytest.approx(ref_loss.item(), rel=tol)
     for name in ref_parts:
         assert parts[name].item() == pytest.approx(ref_parts[name].item(), rel=tol, abs=tol * 1e-3), name
-    for a, b in zip(grads, ref_grads):  # the pose, beta and the head: every gradient the loop takes
+    for a, b in zip(grads, ref_grads):
         torch.testing.assert_close(a, b, rtol=0, atol=tol * 10 * float(b.abs().max()))
     for name in ("depth", "color", "weights"):
         torch.testing.assert_close(getattr(out, name), getattr(ref_out, name), rtol=0, atol=tol * 10)
