@@ -52,20 +52,15 @@ def tail_step(batch: dict, fused: bool) -> tuple:
     import torch
 
     from slam.config import MAPPING_WEIGHTS
-    from slam.core import fused_render
     from slam.core.losses import total_loss
-    from slam.core.rendering import composite_weights, sdf_to_alpha
+    from slam.core.rendering import color_sum, composite
 
     sdf = batch["sdf"].detach().requires_grad_()
     rgb = batch["rgb"].detach().requires_grad_()
     beta = torch.tensor(10.0, device=sdf.device, requires_grad=True)
     z = batch["z"]
-    if fused:
-        w, depth = fused_render.composite(sdf, beta, z)
-        color = fused_render.color_sum(w, rgb)
-    else:
-        w = composite_weights(sdf_to_alpha(sdf, beta))
-        depth, color = (w * z).sum(-1), (w[..., None] * rgb).sum(-2)
+    w, depth = composite(sdf, beta, z, fused)
+    color = color_sum(w, rgb, fused)
     loss, _ = total_loss(sdf, z, depth, color, batch["D"], batch["color"], 0.06, MAPPING_WEIGHTS(),
                          fused=fused)
     loss.backward()

@@ -75,6 +75,23 @@ def composite_weights(alpha: torch.Tensor) -> torch.Tensor:
     return alpha * trans
 
 
+def composite(sdf: torch.Tensor, beta: torch.Tensor | float, z: torch.Tensor,
+              fused: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(weights [R, N], depth [R])`` of SDF samples ``sdf [R, N]`` at depths ``z [R, N]`` (metres): ESLAM's
+    compositing, with the fused kernel (:func:`slam.core.fused_render.composite`; check
+    :func:`slam.core.fused_render.eligible` first) or these PyTorch ops."""
+    if fused:
+        return fused_render.composite(sdf, beta, z)
+    w = composite_weights(sdf_to_alpha(sdf, beta))
+    return w, (w * z).sum(-1)
+
+
+def color_sum(weights: torch.Tensor, rgb: torch.Tensor, fused: bool = False) -> torch.Tensor:
+    """``[R, 3]`` rendered colour ``sum_n w_n rgb_n`` of weights ``[R, N]`` and sample colours ``[R, N, 3]``, fused
+    (:func:`slam.core.fused_render.color_sum`) or not, as :func:`composite` was."""
+    return fused_render.color_sum(weights, rgb) if fused else (weights[..., None] * rgb).sum(-2)
+
+
 @dataclass
 class RenderOut:
     """Per-ray rendering: ``depth [R]``, ``color [R, 3]``, raw ``sdf [R, N]`` and sample depths ``z [R, N]``."""
@@ -130,19 +147,10 @@ def render_rays(
                            generator)
     pts = (origins[:, None, :] + dirs[:, None, :] * z[..., None]).reshape(-1, 3)
     sdf = sdf_fn(pts).reshape(R, N)
-    if fused and fused_render.eligible(sdf, constant=(z,)):
-        w, depth_hat = fused_render.composite(sdf, beta, z)
-        rgb = _sample_colors(pts, w, rgb_fn, color_cutoff)
-        return RenderOut(depth=depth_hat, color=fused_render.color_sum(w, rgb), sdf=sdf, z=z, weights=w)
-    w = composite_weights(sdf_to_alpha(sdf, beta))
-    rgb = _sample_colors(pts, w, rgb_fn, color_cutoff)
-    return RenderOut(
-        depth=(w * z).sum(-1),
-        color=(w[..., None] * rgb).sum(-2),
-        sdf=sdf,
-        z=z,
-        weights=w,
-    )
+    fused = fused and fused_render.eligible(sdf, constant=(z,))
+    w, depth_hat = composite(sdf, beta, z, fused)
+    rgb = sample_colors(pts, w, rgb_fn, color_cutoff)
+    return RenderOut(depth=depth_hat, color=color_sum(w, rgb, fused), sdf=sdf, z=z, weights=w)
 
 
 def _sample_ray_depths(origins, dirs, depth, sdf_fn: SdfFn, beta, truncation: float, n_stratified: int,
@@ -163,7 +171,7 @@ def _sample_ray_depths(origins, dirs, depth, sdf_fn: SdfFn, beta, truncation: fl
     return z
 
 
-def _sample_colors(pts: torch.Tensor, w: torch.Tensor, rgb_fn: RgbFn, color_cutoff: float) -> torch.Tensor:
+def sample_colors(pts: torch.Tensor, w: torch.Tensor, rgb_fn: RgbFn, color_cutoff: float) -> torch.Tensor:
     """``[R, N, 3]`` colours of the samples ``pts`` ``[R * N, 3]``; with ``color_cutoff > 0`` only samples whose
     weight ``w`` ``[R, N]`` exceeds it are queried (the others are 0)."""
     R, N = w.shape

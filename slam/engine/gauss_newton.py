@@ -40,7 +40,7 @@ from slam.core import fused_render
 from slam.core.camera import pixel_directions, sample_pixels
 from slam.core.losses import sdf_regions, total_loss, tracking_inliers
 from slam.core.pose import exp_se3, matrix_to_pose, normalize_pose, pose_to_matrix
-from slam.core.rendering import composite_weights, ray_box_exit, sdf_to_alpha
+from slam.core.rendering import color_sum, composite, ray_box_exit, sample_colors
 from slam.core.sampling import sample_depth_rays
 from slam.engine.state import TrackResult
 
@@ -71,20 +71,10 @@ def _render(scene, pts: torch.Tensor, rays: _Rays, cutoff: float, fused: bool):
     s = scene.sdf(flat).reshape(R, N)
     s_l = s.detach().requires_grad_(True)
     fused = fused and fused_render.eligible(s_l, constant=(rays.z,))
-    if fused:
-        w, depth = fused_render.composite(s_l, scene.beta, rays.z)
-    else:
-        w = composite_weights(sdf_to_alpha(s_l, scene.beta))
-        depth = (w * rays.z).sum(-1)
-    keep = (w.detach() > cutoff).reshape(-1) if cutoff > 0 else None
-    if keep is None:
-        rgb = scene.rgb(flat).reshape(R, N, 3)
-    else:
-        rgb = flat.new_zeros(R * N, 3)
-        rgb[keep] = scene.rgb(flat[keep])
-        rgb = rgb.reshape(R, N, 3)
+    w, depth = composite(s_l, scene.beta, rays.z, fused)
+    rgb = sample_colors(flat, w, scene.rgb, cutoff)
     rgb_l = rgb.detach().requires_grad_(True)
-    color = fused_render.color_sum(w, rgb_l) if fused else (w[..., None] * rgb_l).sum(-2)
+    color = color_sum(w, rgb_l, fused)
     return s, rgb, s_l, rgb_l, w, depth, color
 
 
