@@ -2,17 +2,22 @@
 write.
 
 Each specialised kernel's source goes to a file named after the hash of its text in the cache folder
-(``$TDFIELDS_CACHE_DIR``, else ``$XDG_CACHE_HOME/tdfields``, else ``~/.cache/tdfields``; a temporary folder when
-none is writable) and is imported from there, so numba's own on-disk cache (``cache=True``) keeps the compiled
+(``$TDFIELDS_CACHE_DIR``, else ``$XDG_CACHE_HOME/tdfields``, else ``~/.cache/tdfields``; when none is writable,
+``tdfields-kernels-v<N>-<uid>`` in the system's temporary folder, made mode 0700 and used only while it is this
+user's alone, else a fresh private folder for the process) and is imported from there, so numba's own on-disk cache (``cache=True``) keeps the compiled
 machine code beside it: a program is compiled once per machine, not once per process. Loaded modules are also
 kept in this process, keyed by everything their text depends on.
 """
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import importlib.util
+import logging
 import os
+import shutil
+import stat
 import sys
 import tempfile
 import threading
@@ -25,6 +30,10 @@ from tdfields.program import Program
 
 _loaded: dict[tuple, ModuleType] = {}
 _lock = threading.Lock()
+#: the predictable temporary folder -> the fresh one this process uses instead (that folder was not its user's alone)
+_replaced: dict[Path, Path] = {}
+
+log = logging.getLogger("tdfields")
 
 
 def cache_dir() -> Path:
@@ -39,9 +48,55 @@ def cache_dir() -> Path:
         probe.write_text("")
         probe.unlink()
     except OSError:
-        folder = Path(tempfile.gettempdir()) / f"tdfields-kernels-v{version}-{os.getuid()}"
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = _private_temporary_folder(f"tdfields-kernels-v{version}-{os.getuid()}")
     return folder
+
+
+def _private_temporary_folder(name: str) -> Path:
+    """``name`` in the system's temporary folder when it is this user's alone (made so if absent), else a fresh
+    private folder (removed at exit; kernels are then compiled again by each process).
+
+    Its path is predictable and the temporary folder shared: another local user could make it first. Kernels are
+    imported from it and numba's cache index beside them is unpickled, so a folder someone else owns or can write
+    would run their code as this user."""
+    folder = Path(tempfile.gettempdir()) / name
+    if folder in _replaced:
+        return _replaced[folder]
+    try:
+        folder.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        return _replace(folder, f"cannot be made ({exc.strerror})")
+    problem = _not_private(folder)
+    return folder if problem is None else _replace(folder, problem)
+
+
+def _not_private(folder: Path) -> str | None:
+    """Why ``folder`` is not this user's alone (None when it is): a link, not a folder, another owner, or
+    writable by group or others. lstat, not stat: a link planted in its place is not followed."""
+    try:
+        st = os.lstat(folder)
+    except OSError as exc:
+        return f"cannot be examined ({exc.strerror})"
+    if stat.S_ISLNK(st.st_mode):
+        return "is a symbolic link"
+    if not stat.S_ISDIR(st.st_mode):
+        return "is not a folder"
+    if st.st_uid != os.getuid():
+        return f"is owned by uid {st.st_uid}, not by this user (uid {os.getuid()})"
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"has mode {stat.S_IMODE(st.st_mode):o}: group or other users can write to it"
+    return None
+
+
+def _replace(folder: Path, problem: str) -> Path:
+    fresh = Path(tempfile.mkdtemp(prefix=f"{folder.name}-"))  # mode 0700, a name no one can guess
+    atexit.register(shutil.rmtree, fresh, ignore_errors=True)
+    _replaced[folder] = fresh
+    log.warning("kernel cache: %s %s; using %s for this process instead (kernels compile again in each process: "
+                "set TDFIELDS_CACHE_DIR to a folder of your own to keep them)", folder, problem, fresh)
+    return fresh
 
 
 def bounds_checked() -> bool:
