@@ -31,8 +31,9 @@ def register(subparsers) -> None:
             "overrides are dotted key=value pairs, e.g. tracking.iters=20 representation=eslam bound=auto\n"
             "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu,\n"
             "         7scenes, ...\n"
-            "resume an interrupted run:  lrslam run --resume runs/rpy   (only device, data.max_bad_fraction,\n"
-            "         data.prefetch, checkpoint_every and checkpoint_interval_s may be changed on resume)"
+            "resume an interrupted run:  lrslam run --resume runs/rpy   (only device, mapper_process,\n"
+            "         preload_kernels, data.max_bad_fraction, data.prefetch, data.prefetch_in, checkpoint_every,\n"
+            "         checkpoint_interval_s and mapping.keyframe_spill_dir may be changed on resume)"
         ),
     )
     p.add_argument("--config", default=None, help="preset name or YAML file (default: synthetic)")
@@ -65,6 +66,7 @@ def register(subparsers) -> None:
 def main(args) -> int:
     from slam.config import load_config
     from slam.config.load import flatten, parse_overrides
+    from slam.engine.setup import check_spill_dir
     from slam.run.outputs import finished_metrics
     from slam.run.runner import RunInterrupted, resume_config, run_to_folder
 
@@ -88,6 +90,7 @@ def main(args) -> int:
         if args.device is not None:
             overrides.append(f"device={args.device}")
         cfg = load_config(args.config or "synthetic", overrides)
+        check_spill_dir(cfg)
         out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"
     if args.stop_after is not None and args.stop_after < 1:
         raise SlamInputError(f"--stop-after must be at least 1 frame, got {args.stop_after}")

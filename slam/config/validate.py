@@ -7,7 +7,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-import os
 import re
 from typing import Any, Union, get_args, get_origin, get_type_hints
 
@@ -176,10 +175,9 @@ def _validate(cfg: Config) -> None:
         # have to drop one of those
         raise SlamInputError(f"config key 'mapping.max_keyframes' = {cfg.mapping.max_keyframes} is out of range: "
                              "must be 0 (keep every keyframe) or >= 3 (the first and the last two are always kept)")
-    spill = cfg.mapping.keyframe_spill_dir
-    if spill and not os.path.isdir(os.path.expanduser(spill)):
-        raise SlamInputError(f"config key 'mapping.keyframe_spill_dir' = {spill!r} is not a directory "
-                             "(\"\" uses the system's temporary directory)")
+    # mapping.keyframe_spill_dir is not checked here: it is scratch, and a run folder's config is also read where
+    # it is never used (lrslam mesh, a resume on another machine); slam.engine.setup.check_spill_dir checks it
+    # where a fresh run starts
     if cfg.mapper_process and not cfg.parallel:
         raise SlamInputError("config key 'mapper_process' = true needs 'parallel' = true (sequential mode maps inline, "
                              "in the tracker's own process)")

@@ -4,6 +4,7 @@ given), and the data's fingerprint a resumed run must match."""
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,25 @@ def resolve_device(name: str) -> torch.device:
     elif name != "cpu":
         raise SlamInputError(f"device must be cpu or cuda, got '{name}'")
     return torch.device(name)
+
+
+def check_spill_dir(cfg: Config) -> None:
+    """A fresh run that will spill keyframe images (``mapping.keyframes_in_memory`` > 0) into
+    ``mapping.keyframe_spill_dir`` must find that folder writable; SlamInputError otherwise.
+
+    Only a fresh run is checked: a resumed run (a run folder moved to another machine, its scratch cleaned) keeps
+    the images in memory when the folder cannot be written (:class:`slam.engine.keyframes.KeyframeStore`, the same
+    bits either way), and may name another folder with ``--resume OUT mapping.keyframe_spill_dir=DIR``."""
+    spill = cfg.mapping.keyframe_spill_dir
+    if not spill or cfg.mapping.keyframes_in_memory == 0:  # the system's temporary folder, or never spilled
+        return
+    folder = os.path.expanduser(spill)
+    why = ("is not a folder" if not os.path.isdir(folder) else
+           "is not writable" if not os.access(folder, os.W_OK | os.X_OK) else None)
+    if why:
+        raise SlamInputError(f"config key 'mapping.keyframe_spill_dir' = {spill!r} {why} (keyframe images past "
+                             f"mapping.keyframes_in_memory = {cfg.mapping.keyframes_in_memory} go there; \"\" uses "
+                             "the system's temporary folder, keyframes_in_memory=0 keeps them all in memory)")
 
 
 def load_data(cfg: Config):

@@ -171,9 +171,9 @@ def _check_finite(path: Path, ckpt: dict) -> None:
 
 
 #: keys a resumed run may change: they decide where the run computes and when it stops or writes, never what it
-#: computes
+#: computes (the keyframe spill folder is scratch: a run folder moved to another machine names its own)
 RESUME_KEYS = ("device", "mapper_process", "preload_kernels", "data.max_bad_fraction", "data.prefetch",
-               "data.prefetch_in", "checkpoint_every", "checkpoint_interval_s")
+               "data.prefetch_in", "checkpoint_every", "checkpoint_interval_s", "mapping.keyframe_spill_dir")
 
 
 def config_differences(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> list[str]:

@@ -161,14 +161,21 @@ def test_max_keyframes_below_three_breaks_the_keep_first_and_last_two_rule(n):
     assert load_config("synthetic", ["mapping.max_keyframes=3"]).mapping.max_keyframes == 3
 
 
-def test_keyframe_spill_dir_must_exist(tmp_path):
+def test_keyframe_spill_dir_is_checked_where_a_fresh_run_starts_not_when_a_config_is_read(tmp_path):
+    """A run folder's config is read where its scratch folder is never used (lrslam mesh, a resume on another
+    machine): only a fresh run that will spill needs it (tests/slam/commands/test_commands_run.py)."""
+    from slam.engine.setup import check_spill_dir
+
     missing = tmp_path / "no such dir"
-    with pytest.raises(SlamInputError, match="'mapping.keyframe_spill_dir' = .*no such dir.* is not a directory"):
-        load_config("synthetic", [f"mapping.keyframe_spill_dir={missing}"])
     (tmp_path / "a file").write_text("")
-    with pytest.raises(SlamInputError, match="is not a directory"):
-        load_config("synthetic", [f"mapping.keyframe_spill_dir={tmp_path / 'a file'}"])
-    assert load_config("synthetic", [f"mapping.keyframe_spill_dir={tmp_path}"]).mapping.keyframe_spill_dir == str(tmp_path)
+    for spill in (missing, tmp_path / "a file"):
+        cfg = load_config("synthetic", [f"mapping.keyframe_spill_dir={spill}"])
+        assert cfg.mapping.keyframe_spill_dir == str(spill)
+        with pytest.raises(SlamInputError, match=r"'mapping.keyframe_spill_dir' = .* is not a folder \(keyframe"):
+            check_spill_dir(cfg)
+        check_spill_dir(load_config("synthetic", [f"mapping.keyframe_spill_dir={spill}",
+                                                  "mapping.keyframes_in_memory=0"]))  # never spills
+    check_spill_dir(load_config("synthetic", [f"mapping.keyframe_spill_dir={tmp_path}"]))
 
 
 def test_ignore_edge_must_leave_pixels_in_the_working_image(tiny_seq, capsys):
