@@ -24,7 +24,8 @@ def register(subparsers) -> None:
         ),
     )
     p.add_argument("checkpoint", help="a run folder of `lrslam run`, or its checkpoint.pt")
-    p.add_argument("--resolution", type=float, default=None, help="grid spacing in metres (default: the run's)")
+    p.add_argument("--resolution", type=float, default=None,
+                   help="grid spacing in metres, > 0 and <= 1000 (default: the run's meshing.resolution)")
     p.add_argument("--out", default=None, help="output .ply (default: mesh_<res>.ply next to the checkpoint)")
     p.add_argument("--no-cull", action="store_true", help="skip culling against the frames' view frusta")
     p.set_defaults(func=main)
@@ -74,13 +75,18 @@ def main(args) -> int:
     from slam.engine.frames import readable_depth
     from slam.model.mesher import Hull, extract_mesh, hull_points
 
+    from slam.config.declare import METRES, Range
+
+    # the run's own meshing.resolution range: 0 is not "the run's" (only leaving the flag out is)
+    allowed = Range(**METRES)
+    if args.resolution is not None and not allowed.ok(args.resolution):
+        raise SlamInputError(f"--resolution = {args.resolution:g} is out of range: must be {allowed} (metres); "
+                             "leave it out for the run's meshing.resolution")
     path = Path(args.checkpoint)
     if path.is_dir():
         path = path / "checkpoint.pt"
     cfg, scene, extra = load_run_checkpoint(path)
-    res = args.resolution or cfg.meshing.resolution
-    if not res > 0:
-        raise SlamInputError(f"--resolution must be positive, got {res}")
+    res = cfg.meshing.resolution if args.resolution is None else args.resolution
     poses = extra["poses"]
     from slam.data.types import Intrinsics
 

@@ -10,11 +10,12 @@ from slam.errors import SlamInputError
 from slam.model.scene import SceneModel, scene_aabb
 
 
-def _save_run(data, path, keyframes=(0,)):
+def _save_run(data, path, keyframes=(0,), overrides=()):
     """What ``lrslam run`` saves for a 4-frame run on ``data`` (weights untrained, poses exact)."""
     from slam.data import load_dataset
 
-    cfg = load_config("synthetic", [f"data.path={data}", "representation=sa_cp", "meshing.resolution=0.1"])
+    cfg = load_config("synthetic", [f"data.path={data}", "representation=sa_cp", "meshing.resolution=0.1",
+                                    *overrides])
     ds = load_dataset(data)
     aabb = scene_aabb(cfg.scene.bound, cfg.scene.bound_dividable)
     torch.manual_seed(0)
@@ -50,6 +51,34 @@ def test_mesh_takes_the_run_folder_and_survives_frames_it_cannot_read(tiny_seq, 
     err = capsys.readouterr().err
     assert "1 frame(s) of the run cannot be read" in err and "Traceback" not in err
     assert (tmp_path / "run" / "mesh_0.1.ply").is_file()
+
+
+def test_mesh_of_a_run_whose_scratch_folder_is_gone(tiny_seq, tmp_path):
+    """The run's keyframe spill folder (scratch, removed after the run or absent on the machine the run folder
+    was moved to) is never used by meshing: it must not stop ``lrslam mesh``."""
+    from slam.cli import main
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    (tmp_path / "run").mkdir()
+    _save_run(tiny_seq, tmp_path / "run" / "checkpoint.pt",
+              overrides=[f"mapping.keyframe_spill_dir={scratch}", "mapping.keyframes_in_memory=1"])
+    scratch.rmdir()
+    assert main(["mesh", str(tmp_path / "run"), "--no-cull", "--resolution", "0.2"]) == 0
+    assert (tmp_path / "run" / "mesh_0.2.ply").is_file()
+
+
+@pytest.mark.parametrize("res", ["0", "-0.1", "nan", "inf", "2000"])
+def test_a_resolution_out_of_range_is_refused_in_one_line(checkpoint, tmp_path, capsys, res):
+    """0 used to mean "the run's" (falsy), infinity reached marching cubes; the run's own meshing.resolution range
+    applies (> 0 and <= 1000 metres). Nothing is written."""
+    from slam.cli import main
+
+    path, _, _ = checkpoint
+    assert main(["mesh", str(path), f"--resolution={res}", "--no-cull", "--out", str(tmp_path / "m.ply")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--resolution = {res}" in err[0] and "must be > 0 and <= 1000 (metres)" in err[0]
+    assert not (tmp_path / "m.ply").exists()
 
 
 def test_checkpoint_rebuilds_the_config_and_the_weights(checkpoint):
