@@ -103,21 +103,45 @@ class KeyframeStore:
     def __len__(self) -> int:
         return len(self.frames)
 
-    def add(self, kf: Keyframe) -> None:
+    def add(self, kf: Keyframe, drop: bool = True) -> None:
+        """Store ``kf`` (converted to ``storage``); past ``max_keyframes`` drop the most redundant keyframe, unless
+        ``drop`` is False (a mirror that takes its drops from another store: :meth:`follow`)."""
         if self.storage == "compact":
             kf = Keyframe(kf.index, (kf.rgb() * 255.0).round().clamp(0, 255).to(torch.uint8),
                           kf.metres().to(torch.float16), kf.pose)
         self.frames.append(kf)
-        if self.max_keyframes and len(self.frames) > self.max_keyframes:
-            gone = self.frames.pop(self._most_redundant())
-            if gone.spilled is not None:
-                gone.spilled.file.free(gone.spilled)
-            self.dropped += 1
+        if drop and self.max_keyframes and len(self.frames) > self.max_keyframes:
+            self._drop(self.frames[self._most_redundant()])
         if self.in_memory and not self.spill_error:
             resident = [f for f in self.frames if f.color is not None]
             for old in resident[: max(len(resident) - self.in_memory, 0)]:
                 if not self._spill(old):
                     break
+
+    def _drop(self, gone: Keyframe) -> None:
+        self.frames.remove(gone)
+        if gone.spilled is not None:
+            gone.spilled.file.free(gone.spilled)
+        self.dropped += 1
+
+    def follow(self, indices: list[int], poses: torch.Tensor) -> None:
+        """Become the mirror of another store that holds the keyframes of frame positions ``indices`` (in order)
+        with poses ``[K, 7]``: drop the keyframes it dropped and take its (BA-refined) poses. The mapper process's
+        store decides which keyframe goes by its own poses, which the mirror has not seen yet, so the mirror must
+        not decide for itself.
+
+        Raises:
+            RuntimeError: ``indices`` are not this store's keyframes less some dropped ones, or do not match
+                ``poses`` (the two stores no longer hold the same frames)."""
+        keep = set(indices)
+        for gone in [kf for kf in self.frames if kf.index not in keep]:
+            self._drop(gone)
+        held = [kf.index for kf in self.frames]
+        if held != list(indices) or len(poses) != len(held):
+            raise RuntimeError(f"the keyframe mirror holds frames {held}, the mapping process {list(indices)} "
+                               f"({len(poses)} poses)")
+        for kf, pose in zip(self.frames, poses):
+            kf.pose = pose.clone()
 
     def _spill(self, kf: Keyframe) -> bool:
         try:
@@ -154,13 +178,9 @@ class KeyframeStore:
         self.close()
         self.spill = None
         self.dropped = int(state.get("keyframes_dropped", 0))
-        cap, self.max_keyframes = self.max_keyframes, 0  # the stored keyframes are the ones kept: no dropping
-        try:
-            for kf in state["keyframes"]:
-                color, depth = read(kf["k"])
-                self.add(Keyframe(kf["k"], color, depth, kf["pose"].clone()))
-        finally:
-            self.max_keyframes = cap
+        for kf in state["keyframes"]:
+            color, depth = read(kf["k"])
+            self.add(Keyframe(kf["k"], color, depth, kf["pose"].clone()), drop=False)  # the ones kept: no dropping
 
     def _most_redundant(self) -> int:
         T = keyframe_matrices(self.poses())

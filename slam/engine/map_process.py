@@ -96,7 +96,8 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
                 res.pose = res.pose.cpu()
                 reply = ("done", {"result": res, "seconds": seconds, "snapshot": pack_state(scene.state_dict()),
                                   "gen": gen.get_state(),
-                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7)})
+                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7),
+                                  "indices": [kf.index for kf in keyframes.frames]})
         except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
             reply = ("error", traceback.format_exc())
         conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
@@ -113,10 +114,8 @@ def _replica(cfg, device: str, body: dict):
         fit_to_state(scene, body["scene"])
         scene.load_state_dict(body["scene"])
     keyframes = KeyframeStore.for_mapping(cfg.mapping)
-    cap, keyframes.max_keyframes = keyframes.max_keyframes, 0  # the parent's are the ones kept
     for k, color, depth, pose in body["keyframes"]:
-        keyframes.add(Keyframe(k, color, depth, pose))
-    keyframes.max_keyframes = cap
+        keyframes.add(Keyframe(k, color, depth, pose), drop=False)  # the parent's are the ones kept
     return scene, keyframes
 
 

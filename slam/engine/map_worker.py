@@ -130,12 +130,9 @@ class MapWorker:
         """A call of the child process finished (in order): make the mirrors what the child's are now."""
         t0 = time.perf_counter()
         res = reply["result"]
-        keep_keyframe(self.keyframes, job.k, job.color, job.depth, job.pose, res, job.keyframe)
-        if len(self.keyframes) != len(reply["poses"]):
-            raise RuntimeError(f"the mapping process holds {len(reply['poses'])} keyframes, the loop "
-                               f"{len(self.keyframes)}")
-        for kf, pose in zip(self.keyframes.frames, reply["poses"]):
-            kf.pose = pose.clone()
+        # the child dropped a keyframe (mapping.max_keyframes) by its BA-refined poses: take its choice, not ours
+        keep_keyframe(self.keyframes, job.k, job.color, job.depth, job.pose, res, job.keyframe, drop=False)
+        self.keyframes.follow(reply["indices"], reply["poses"])
         self.gen.set_state(reply["gen"])
         snapshot = unpack_state(reply["snapshot"])
         with torch.no_grad():

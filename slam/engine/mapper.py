@@ -219,13 +219,14 @@ def _write_back(cam, free, window: list[int], keyframes: KeyframeStore, pose):
 
 
 def keep_keyframe(keyframes: KeyframeStore, index: int, color: torch.Tensor, depth: torch.Tensor, pose: torch.Tensor,
-                  result: MapResult, keyframe: bool) -> None:
+                  result: MapResult, keyframe: bool, drop: bool = True) -> None:
     """After the mapping call of frame ``index``: store it in ``keyframes`` (images on the CPU, with the call's
     BA-refined pose, or ``pose`` ``[7]`` for frame 0) when the schedule made it a keyframe and the call took a
-    step. The one rule for every place a call runs (thread, inline, the mapper's process), so their stores agree."""
+    step. The one rule for every place a call runs (thread, inline, the mapper's process), so their stores agree;
+    ``drop`` False: a mirror, which takes the drops of the store it mirrors (:meth:`KeyframeStore.follow`)."""
     if keyframe and result.ok:
         kept = result.pose if index > 0 else pose
-        keyframes.add(Keyframe(index, color.cpu(), depth.cpu(), kept.cpu().clone()))
+        keyframes.add(Keyframe(index, color.cpu(), depth.cpu(), kept.cpu().clone()), drop=drop)
 
 
 def map_frame(

@@ -85,3 +85,36 @@ def test_a_mesh_mid_run_waits_for_the_mapper_instead_of_freezing_its_scene(tiny_
     s.run(progress=False, observers=[Mesher()])
     s.close()
     assert len(faces) == 8 and not [e for e in s.state.events if "mapping" in e["event"]]
+
+
+def test_the_keyframe_mirror_takes_the_mapping_processs_drop_and_its_poses():
+    """With ``mapping.max_keyframes`` the mapper process drops the keyframe that is most redundant by its BA-refined
+    poses; the loop's mirror must drop the same frame and pair each pose with its own frame, though by the poses
+    it held before the reply it would have dropped another (20b7b9c kept frame 1 with frame 2's pose)."""
+    from slam.engine.keyframes import Keyframe, KeyframeStore
+    from slam.engine.map_worker import MapJob, MapWorker
+    from slam.engine.mapper import MapResult
+    from slam.engine.wire import pack_state
+    from slam.model.scene import SceneModel
+
+    def pose(x):
+        return torch.tensor([1.0, 0, 0, 0, x, 0, 0])
+
+    cfg = load_config("synthetic", [*TINY[1:], "mapping.max_keyframes=4"])
+    scene = SceneModel(cfg, torch.tensor([[-1.0, 1.0]] * 3))
+    store = KeyframeStore.for_mapping(cfg.mapping)
+    for i, x in enumerate([0.0, 0.5, 0.52, 1.0]):  # by these poses keyframe 2 (2 cm from 1) is the redundant one
+        store.add(Keyframe(i, torch.full((2, 2, 3), float(i)), torch.full((2, 2), float(i)), pose(x)))
+    worker = MapWorker(scene, store, cfg, None, torch.Generator(), parallel=False)
+    # the child's BA moved keyframe 1 next to keyframe 0, so it dropped keyframe 1
+    child = [pose(x) for x in (0.0, 0.52, 1.0, 1.5)]
+    reply = {"result": MapResult(pose(1.5), [0, 1, 2, 3], 0.1, True, 0), "seconds": 0.01,
+             "snapshot": pack_state(scene.state_dict()), "gen": torch.Generator().get_state(),
+             "poses": torch.stack(child), "indices": [0, 2, 3, 4]}
+    job = MapJob(4, torch.full((2, 2, 3), 4.0), torch.full((2, 2), 4.0), pose(1.5), first=False, keyframe=True)
+    worker._arrived(job, reply)
+    assert [kf.index for kf in store.frames] == [0, 2, 3, 4] and store.dropped == 1
+    assert all(torch.equal(kf.pose, p) for kf, p in zip(store.frames, child))
+    assert [float(kf.metres()[0, 0]) for kf in store.frames] == [0.0, 2.0, 3.0, 4.0]  # each frame its own images
+    with pytest.raises(RuntimeError, match="keyframe mirror"):  # a reply naming frames the mirror lacks
+        worker._arrived(MapJob(5, None, None, pose(2.0), False, False), {**reply, "indices": [0, 2, 3, 9]})
