@@ -3,6 +3,7 @@ given), and the data's fingerprint a resumed run must match."""
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 from pathlib import Path
@@ -154,11 +155,72 @@ def scene_bound(cfg: Config, ds, indices: list[int], first_depth, c2w0: torch.Te
     return bound
 
 
-def data_fingerprint(ds, indices: list[int]) -> dict:
-    """What must not change between a run and its resume: the frames processed and their files."""
+#: the fingerprint's form: 2 adds every selected frame's file names and sizes (20b7b9c's, without "form", held the
+#: frame counts and the first and last file names only)
+FINGERPRINT_FORM = 2
+
+
+def _frame_files(ds, indices: list[int]) -> list[Path]:
+    """The colour and depth files of the selected frames, colour first, in frame order (none for a dataset
+    that does not list its files)."""
+    return [Path(paths[i]) for paths in (getattr(ds, "color_paths", None), getattr(ds, "depth_paths", None)) if paths
+            for i in indices]
+
+
+def _digest(items) -> str:
+    return hashlib.sha256("\n".join(map(str, items)).encode()).hexdigest()[:32]
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:  # gone since the dataset was opened: a bad frame, the same when resumed on the same data
+        return -1
+
+
+def _old_fingerprint(ds, indices: list[int]) -> dict:
+    """20b7b9c's fingerprint: frame counts and the first and last frames' file names."""
     names = []
     for attr in ("color_paths", "depth_paths"):
         paths = getattr(ds, attr, None)
         if paths:
             names += [Path(paths[i]).name for i in (indices[0], indices[-1])]
     return {"frames": len(indices), "dataset_frames": len(ds), "files": names}
+
+
+def data_fingerprint(ds, indices: list[int]) -> dict:
+    """What must not change between a run and its resume: the frames processed and their files.
+
+    ``{"form": 2, "frames", "dataset_frames", "files": the first and last frames' colour and depth file names,
+    "names": a digest of every selected frame's file names, "sizes": one of their sizes in bytes}``. Sizes, not
+    contents: a checkpoint is written every minute and a sequence holds thousands of images (GBs to read each
+    time), while a file replaced by another image has another size in practice (compressed PNG / JPEG). A few
+    hundred bytes whatever the sequence length; one ``stat`` per file."""
+    files = _frame_files(ds, indices)
+    return {"form": FINGERPRINT_FORM, **_old_fingerprint(ds, indices), "names": _digest(p.name for p in files),
+            "sizes": _digest(_size(p) for p in files)}
+
+
+def fingerprint_mismatch(stored: dict, ds, indices: list[int]) -> str | None:
+    """Why the data ``ds`` / ``indices`` are not those a checkpoint's fingerprint ``stored`` was taken of (None
+    when they are). A fingerprint of 20b7b9c's form (no ``form``) is compared on what it holds, so its
+    checkpoints stay resumable."""
+    old = _old_fingerprint(ds, indices)
+    for key, what in (("frames", "frames selected"), ("dataset_frames", "frames in the dataset")):
+        if stored.get(key) != old[key]:
+            return f"{stored.get(key)} {what} at the checkpoint, {old[key]} now"
+    if stored.get("files") != old["files"]:
+        return f"first and last files {stored.get('files')} at the checkpoint, {old['files']} now"
+    if "form" not in stored:
+        return None
+    now = data_fingerprint(ds, indices)
+    if stored.get("names") != now["names"]:
+        return "the file names of the selected frames differ (a frame renamed, added or removed)"
+    if stored.get("sizes") != now["sizes"]:
+        return "the file sizes of the selected frames differ (a frame replaced)"
+    return None
+
+
+def fingerprints_match(stored: dict, ds, indices: list[int]) -> bool:
+    """Whether ``ds`` / ``indices`` are the data of a checkpoint's fingerprint (see :func:`fingerprint_mismatch`)."""
+    return fingerprint_mismatch(stored, ds, indices) is None
