@@ -39,7 +39,7 @@ def register(subparsers) -> None:
     p.add_argument("--config", default=None, help="preset name or YAML file (default: synthetic)")
     p.add_argument("--data", default=None, help="dataset folder (default: the preset's; synthetic: bundled)")
     p.add_argument("--out", default=None, help="output folder (default: runs/<preset>-<representation>)")
-    p.add_argument("--device", default=None, choices=["cpu", "cuda"], help="torch device (default: the config's)")
+    p.add_argument("--device", default=None, choices=["cpu", "cuda"], help="torch device (default: the config's; with --resume, the kind the run computed on)")
     p.add_argument("--resume", metavar="OUT_DIR", default=None,
                    help="go on from the latest checkpoint of this run folder (same config and data)")
     p.add_argument("--stop-after", metavar="N", type=int, default=None,

@@ -6,7 +6,8 @@ position to go on from, the per-frame state (:class:`slam.engine.system.RunState
 BA-refined poses, the random states (torch, numpy, the tracker's and the mapper's generators) and, in parallel
 mode, the tracker's copy of the map and the mapping calls it has not applied yet. Keyframe images are not stored:
 they are read again from the dataset (deterministically the same), so a checkpoint stays a few MB whatever the
-sequence length; the dataset's fingerprint (frame count and file names) must match on resume.
+sequence length; the dataset's fingerprint (frame counts, every selected frame's file names and sizes) must match
+on resume, and so must the kind of device the run computed on (``device_type``: cpu or cuda).
 
 Written with a temporary name, flushed to the disk and renamed (:mod:`slam.files`), so a kill, a power loss or a
 full disk while writing leaves the previous checkpoint intact; the one before it is kept as ``checkpoint.prev.pt``
@@ -85,7 +86,8 @@ def save_checkpoint(system, path: Path) -> None:
     path = Path(path)
     run = system.state_dict()  # waits for a mapping call in progress: the scene and keyframes are its until then
     extra = checkpoint_extra(system.view())
-    extra["run"] = {"format": RUN_FORMAT, "next": len(system.state.est), **run}
+    # the kind of device, not its number: cuda:0 and cuda:1 compute the same numbers, the CPU and a GPU do not
+    extra["run"] = {"format": RUN_FORMAT, "next": len(system.state.est), "device_type": system.device.type, **run}
     with replacing(path, "checkpoint") as tmp:
         tdfields.save(tmp, system.scene, config=system.cfg.to_dict(), extra=extra)
         _keep_previous(path)
@@ -115,12 +117,12 @@ def load_run(path: Path, cfg=None) -> dict:
     """The checkpoint at ``path`` (a dict as :func:`tdfields.load` returns).
 
     Args:
-        cfg: the run folder's config (``config.yaml``); the checkpoint must have been written under it (the
-            device and :data:`RESUME_KEYS` may differ).
+        cfg: the run folder's config (``config.yaml``); the checkpoint must have been written under it
+            (:data:`RESUME_KEYS` may differ; ``device`` only within the recorded kind: cuda:0 for cuda:1).
 
     Raises:
-        SlamInputError: the checkpoint is missing, unreadable (truncated, empty), holds no run state, or was
-            written under another config.
+        SlamInputError: the checkpoint is missing, unreadable (truncated, empty), holds no run state, was
+            written under another config, or computed on another kind of device.
     """
     path = Path(path)
     ckpt = _read(path)
@@ -131,6 +133,7 @@ def load_run(path: Path, cfg=None) -> dict:
                              f"(found {found or 'none'}: written by another version?)")
     _check_finite(path, ckpt)
     if cfg is not None:
+        _check_device(path, run, cfg.device)
         written = ckpt.get("config") or {}
         added = sorted(set(flatten(cfg.to_dict())) - set(flatten(written))) if written else []
         if added:  # keys this version has and the checkpoint's did not: they keep their defaults
@@ -143,6 +146,17 @@ def load_run(path: Path, cfg=None) -> dict:
                 f"{'; ...' if len(diff) > 4 else ''}): was a new run started into this folder? Run it again "
                 "without --resume, or into another --out")
     return ckpt
+
+
+def _check_device(path: Path, run: dict, device: str) -> None:
+    """Refuse to go on on another kind of device than the run computed on (``run["device_type"]``; a checkpoint
+    without it, from before it was recorded, is not checked): the CPU and a GPU round differently, so the resumed
+    run would not end at the uninterrupted run's trajectory, which a resume promises."""
+    was, now = run.get("device_type"), torch.device(device).type
+    if was is not None and was != now:
+        raise SlamInputError(f"{path} was computed on {was} and this resume would go on on {now} (device = "
+                             f"{device!r}): {was} and {now} compute different numbers, so the resumed trajectory "
+                             f"would not be the uninterrupted run's; resume with --device {was}")
 
 
 def _maps(ckpt: dict):
