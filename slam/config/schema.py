@@ -35,10 +35,12 @@ KEYFRAME_STORAGES = ("float32", "compact")
 class DataConfig:
     """Dataset: ``kind`` is passed to ``slam.data.load_dataset`` (``auto`` or a name in ``slam.data.DATASETS``:
     ``replica``, ``tum``, ``scannet``...; not a schema choice, as slam.config sits below slam.data: a test checks
-    the presets' kinds); ``path`` null means the bundled synthetic sequence. ``options`` are loader options (crop_edge, crop_size,
-    undistort, ...). ``max_frames`` and ``stride`` subsample the sequence. A frame that cannot be read (missing,
-    truncated, wrong size) is skipped and listed in ``events``; once more than ``max_bad_fraction`` of the
-    sequence's frames were bad, the run stops with an error (after its outputs are written)."""
+    the presets' kinds); ``path`` null means the bundled synthetic sequence. ``options`` are loader options
+    (crop_edge, crop_size, undistort, ...: those of the kind's loader, checked by
+    slam.engine.setup.check_data_options); a synthetic kind's with ``path`` null also ``scene`` and the
+    generator's (seed, frames, height, ...: SynthConfig's fields). ``max_frames`` and ``stride`` subsample the
+    sequence. A frame that cannot be read (missing, truncated, wrong size) is skipped and listed in ``events``;
+    once more than ``max_bad_fraction`` of the sequence's frames were bad, the run stops with an error (after its outputs are written)."""
 
     kind: str = "auto"
     path: Optional[str] = None

@@ -80,6 +80,11 @@ def undistort_grid(intr: Intrinsics, dist: Sequence[float]) -> torch.Tensor:
     return grid[None].float()
 
 
+#: the keyword options every loader takes besides its own (passed on to :meth:`RGBDDataset._setup`; the table
+#: "Common keyword options" of docs/data.md); ``depth_scale`` and ``intrinsics`` are each loader's own
+COMMON_OPTIONS = ("crop_size", "crop_edge", "undistort", "stride", "max_frames")
+
+
 class RGBDDataset:
     """A sequence of RGB-D frames on disk; ``ds[i]`` reads and processes frame ``i``.
 

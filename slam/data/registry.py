@@ -9,11 +9,13 @@ probes in the order of :data:`DATASETS`; the first that accepts a folder names i
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from slam.data import replica, scannet, sevenscenes, tum
+from slam.data.base import COMMON_OPTIONS
 from slam.errors import SlamInputError
 
 __all__ = ["DATASETS", "REFERENCE_OPTIONS", "DatasetKind", "dataset_kind"]
@@ -46,6 +48,14 @@ class DatasetKind:
     download: str | None = None
     same_layout_as: str | None = None
     hint: Callable[[Path], str | None] | None = None
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        """The keyword options ``loader(path, **options)`` takes: its own keyword parameters and the common ones
+        (:data:`slam.data.base.COMMON_OPTIONS`), sorted."""
+        own = [p.name for p in inspect.signature(self.loader.__init__).parameters.values()
+               if p.kind is inspect.Parameter.KEYWORD_ONLY]
+        return tuple(sorted({*own, *COMMON_OPTIONS}))
 
     @property
     def detected_as(self) -> str:

@@ -52,7 +52,11 @@ def check_spill_dir(cfg: Config) -> None:
 
 def load_data(cfg: Config):
     """Open the dataset the config names (when ``data.path`` is null the bundled synthetic sequence, the room or
-    ``data.options.scene: walk``)."""
+    ``data.options.scene: walk``, generated with the generator options ``data.options`` gives: seed, frames, ...).
+
+    Raises:
+        SlamInputError: a ``data.options`` key the dataset kind does not take (checked before any folder is read
+            or sequence generated), a missing or foreign folder, or data the loader cannot read."""
     from slam.data import detect_layout, load_dataset
     from slam.data.registry import dataset_kind
 
@@ -60,11 +64,15 @@ def load_data(cfg: Config):
     # the layout a folder of the named dataset is detected as (the synthetic room's is Replica's)
     kind = "auto" if cfg.data.kind == "auto" else dataset_kind(cfg.data.kind).detected_as
     options = dict(cfg.data.options)
-    scene = options.pop("scene", "room") if cfg.data.kind == "synthetic" else "room"
+    if cfg.data.kind != "auto":
+        check_data_options(cfg.data.kind, options, path)
+    synthetic = cfg.data.kind == "synthetic"
+    scene = options.pop("scene", "room") if synthetic else "room"
+    generator = {k: options.pop(k) for k in list(options) if k in GENERATOR_OPTIONS} if synthetic else {}
     if path is None:
         if kind not in ("auto", dataset_kind("synthetic").detected_as):
             raise SlamInputError(f"preset '{cfg.name}' reads {kind} data: pass its folder with --data PATH")
-        path = str(_synthetic_sequence(scene, cfg.data.max_frames, cfg.data.stride))
+        path = str(_synthetic_sequence(scene, cfg.data.max_frames, cfg.data.stride, generator))
     p = Path(path).expanduser()
     if not p.exists():
         raise SlamInputError(f"data folder not found: {p}")
@@ -72,6 +80,8 @@ def load_data(cfg: Config):
     if kind != "auto" and found != kind:
         raise SlamInputError(f"preset '{cfg.name}' expects {kind} data but {p} looks like {found} data "
                              f"(pick a {found} preset or data.kind=auto)")
+    if cfg.data.kind == "auto":
+        check_data_options(found, options, path)
     try:
         ds = load_dataset(p, kind=found, **options)
     except SlamInputError:
@@ -83,16 +93,65 @@ def load_data(cfg: Config):
     return ds
 
 
-def _synthetic_sequence(scene: str, max_frames: int | None, stride: int):
-    """The bundled sequence of ``data.options.scene`` (``room``, the default, or ``walk``). Of the walk only the
-    frames the run reads are generated (its first ``max_frames * stride``; an excerpt's frames equal the walk's)."""
-    from slam.data.synthetic import SCENES, WALK_FRAMES, default_sequence, walk_sequence
+#: ``data.options`` of a synthetic preset that set how its sequence is generated: the fields of
+#: :class:`slam.data.synthetic.SynthConfig` (``lrslam synth``'s options) but ``scene``, which
+#: ``data.options.scene`` chooses
+GENERATOR_OPTIONS = ("seed", "frames", "height", "width", "focal_scale", "depth_noise_sigma", "sensor_holes",
+                     "color_noise_sigma", "loop_frames", "path_radius", "supersample")
+
+
+def check_data_options(kind: str, options: dict, path: str | None) -> None:
+    """Every ``data.options`` key must be an option of the dataset ``kind`` (a name in
+    :data:`slam.data.DATASETS`): its loader's (:attr:`~slam.data.registry.DatasetKind.options`), and for
+    ``synthetic`` also ``scene`` and, when the sequence is generated (``path`` None), :data:`GENERATOR_OPTIONS`
+    with the types of :class:`~slam.data.synthetic.SynthConfig`'s fields.
+
+    Raises:
+        SlamInputError: one line naming the key and the options the kind takes."""
+    from slam.data.registry import dataset_kind
+    from slam.data.synthetic import SynthConfig
+
+    accepted = set(dataset_kind(kind).options)
+    if kind == "synthetic":
+        accepted |= {"scene", *GENERATOR_OPTIONS}
+    for key, value in options.items():
+        if key not in accepted:
+            raise SlamInputError(f"config key 'data.options.{key}' is not an option of {kind} data; it takes "
+                                 f"{', '.join(sorted(accepted))}")
+        if kind == "synthetic" and key in GENERATOR_OPTIONS:
+            if path is not None:
+                raise SlamInputError(f"config key 'data.options.{key}' sets how the synthetic sequence is generated: "
+                                     f"it does not apply to a data folder (data.path = {path!r}; generate one with "
+                                     "lrslam synth, or leave data.path null)")
+            default = getattr(SynthConfig(), key)
+            # bool first: YAML's true is an int to Python, and an int is a fine float
+            ok, want = ((isinstance(value, bool), "true or false") if isinstance(default, bool) else
+                        (isinstance(value, int) and not isinstance(value, bool), "an integer")
+                        if isinstance(default, int) else
+                        (isinstance(value, (int, float)) and not isinstance(value, bool), "a number"))
+            if not ok:
+                shown = str(value).lower() if isinstance(value, bool) else repr(value)
+                raise SlamInputError(f"config key 'data.options.{key}' = {shown} must be {want} (as "
+                                     f"slam.data.synthetic.SynthConfig.{key}, default {default!r})")
+
+
+def _synthetic_sequence(scene: str, max_frames: int | None, stride: int, generator: dict | None = None):
+    """The bundled sequence of ``data.options.scene`` (``room``, the default, or ``walk``), generated with the
+    :data:`GENERATOR_OPTIONS` in ``generator`` (none: the scene's defaults, the cached default sequences). Of the
+    walk only the frames the run reads are generated (its first ``max_frames * stride``, unless ``frames`` is
+    given; an excerpt's frames equal the walk's)."""
+    from slam.data.synthetic import SCENES, WALK_FRAMES, SynthConfig, default_sequence, walk_config, walk_sequence
 
     if scene not in SCENES:
         raise SlamInputError(f"config key 'data.options.scene' = {scene!r}: must be one of {', '.join(SCENES)}")
     if scene == "walk":
-        return walk_sequence(WALK_FRAMES if max_frames is None else min(WALK_FRAMES, max_frames * stride))
-    return default_sequence()
+        frames = WALK_FRAMES if max_frames is None else min(WALK_FRAMES, max_frames * stride)
+        if not generator:
+            return walk_sequence(frames)
+        return default_sequence(cfg=walk_config(**{"frames": frames, **generator}))
+    if not generator:
+        return default_sequence()
+    return default_sequence(cfg=SynthConfig(**generator))
 
 
 def check_edges(cfg: Config, height: int, width: int) -> None:
