@@ -209,7 +209,7 @@ def track_frame_gn(scene, color: torch.Tensor, depth: torch.Tensor, intrinsics, 
                 break
             done, T = last, last[0]
     if done is None:
-        return TrackResult(init_pose.clone(), float("nan"), False, last[2], total)
+        return TrackResult(init_pose.clone(), float("nan"), False, last[2], total, last[4])
     T, loss, message, _, inliers = done  # a later round without rays or a finite loss keeps the earlier result
     return TrackResult(normalize_pose(matrix_to_pose(T.cpu())), loss, True, message, total, inliers)
 
@@ -222,7 +222,13 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
     if rays is None:
         return None, float("nan"), "too few rays with valid depth inside the scene box", 0, float("nan")
     _, rendered, _ = _evaluate(scene, T, rays, cfg)
+    # the Adam tracker's guards (slam.engine.tracker._loss_at): a NaN depth makes the outlier rule's median NaN and
+    # every ray an outlier, and the normal equations of no ray are no step
+    if not bool(torch.isfinite(rendered).all()):
+        return None, float("nan"), "non-finite rendered depth", 1, float("nan")
     inl = tracking_inliers(rendered, rays.D, tc.outlier_factor)
+    if int(inl.sum()) < 10:
+        return None, float("nan"), "too few inlier rays", 1, float(inl.float().mean())
     rays = _Rays(rays.dirs_cam[inl], rays.z[inl], rays.D[inl], rays.C[inl])
     inliers = float(inl.float().mean())
     loss, _, terms = _evaluate(scene, T, rays, cfg, "hessian")

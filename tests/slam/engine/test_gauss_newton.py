@@ -237,3 +237,29 @@ def test_the_prior_holds_the_pose_towards_its_start(mapped):
     assert moved[0.3][0] < moved[0.0][0] and moved[0.3][1] < moved[0.0][1], moved
     assert moved[1e4][0] < 1e-3 and moved[1e4][1] < 0.05, moved
     assert out[0.0].loss <= out[0.3].loss <= out[1e4].loss
+
+
+def test_a_non_finite_depth_or_too_few_inliers_is_refused_as_the_adam_tracker_refuses_them(mapped, monkeypatch):
+    """A map with NaN in part of its geometry (some rays render NaN) and a frame whose rays are all outliers: the
+    result is not ok and says why, as Adam's is, where 20b7b9c divided by zero rays (ZeroDivisionError)."""
+    import slam.engine.gauss_newton as gauss_newton
+
+    s, cfg, frame = mapped
+    gn_cfg = copy.deepcopy(cfg)
+    gn_cfg.tracking.optimizer = "gauss_newton"
+
+    def track(scene):
+        return gauss_newton.track_frame_gn(scene, frame.color, frame.depth, s.intr, s.state.est[4], gn_cfg,
+                                           torch.Generator().manual_seed(0))
+
+    broken = copy.deepcopy(s.scene)
+    with torch.no_grad():
+        for name, p in broken.named_parameters():
+            if name.startswith("fields.geometry"):
+                p.view(-1)[: p.numel() // 3] = float("nan")
+    res = track(broken)
+    assert not res.ok and res.message == "non-finite rendered depth" and torch.equal(res.pose, s.state.est[4])
+    real = gauss_newton.tracking_inliers
+    monkeypatch.setattr(gauss_newton, "tracking_inliers", lambda *a: real(*a) & False)
+    res = track(s.scene)
+    assert not res.ok and res.message == "too few inlier rays" and res.inliers == 0.0
