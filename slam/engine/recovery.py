@@ -107,6 +107,13 @@ def _best_on_common_pixels(inp: TrackInput, cands: list[tuple[str, TrackResult]]
     return name, best
 
 
+def retry_iters(cfg) -> int:
+    """The budget of one recovery or relocalisation attempt: twice a tracking call's, in the tracker's own unit
+    (Adam: ``tracking.iters`` steps; Gauss-Newton: ``tracking.gn_iters`` loss evaluations a round)."""
+    tc = cfg.tracking
+    return 2 * (tc.gn_iters if tc.optimizer == "gauss_newton" else tc.iters)
+
+
 def recover(inp: TrackInput, res: TrackResult, prev: torch.Tensor, dt: float, starts: dict,
             prediction: torch.Tensor, event: Callable) -> tuple[TrackResult, bool, str | None]:
     """Check a tracking result; on an implausible one, track again from each of ``starts`` (name -> ``[7]``
@@ -133,7 +140,7 @@ def recover(inp: TrackInput, res: TrackResult, prev: torch.Tensor, dt: float, st
     cands = [("first attempt", res)]
     for name, start in starts.items():
         r = track_frame(inp.scene, inp.color, inp.depth, inp.intr, start, cfg, inp.gen,
-                        iters=2 * cfg.tracking.iters, patience=0)
+                        iters=retry_iters(cfg), patience=0)
         if r.ok:
             cands.append((name, r))
     found = _best_on_common_pixels(inp, cands, lambda r: not guard.reasons(r.loss, r.inliers, prev, r.pose, dt),
@@ -232,7 +239,7 @@ def relocalise(inp: TrackInput, keyframes: list, anchor: torch.Tensor, dt: float
     cands, confirmed = [], {}
     for name, (start, registered) in starts.items():
         r = track_frame(inp.scene, inp.color, inp.depth, inp.intr, start, cfg, inp.gen,
-                        iters=2 * cfg.tracking.iters, patience=0)
+                        iters=retry_iters(cfg), patience=0)
         if r.ok:
             cands.append((name, r))
             if registered is not None:

@@ -130,3 +130,34 @@ def test_a_run_of_untrusted_frames_ends_in_relocalisation_and_tracking_goes_on(t
         loss_14 = next(t["loss"] for t in s.state.tracking if t["frame"] == 14)
         assert s.guard.state_dict()["losses"][0] == loss_14  # the history restarted from the relocalised frame
         s.close()
+
+
+def test_recovery_and_relocalisation_with_the_gauss_newton_tracker_take_twice_its_evaluations(tiny_seq,
+                                                                                                monkeypatch):
+    """Each attempt gets twice a tracking call's budget in the tracker's own unit: ``2 * tracking.gn_iters`` loss
+    evaluations for Gauss-Newton (20b7b9c gave it Adam's ``2 * tracking.iters``: 40 at the fast preset, where a call
+    takes at most 4). Through a run whose blank frames end in relocalisation, as with Adam above."""
+    import slam.engine.recovery as recovery
+    from slam.engine.recovery import retry_iters
+
+    adam = load_config("synthetic", ["tracking.iters=7", "tracking.gn_iters=3"])
+    gn = load_config("synthetic", ["tracking.iters=7", "tracking.gn_iters=3", "tracking.optimizer=gauss_newton"])
+    assert (retry_iters(adam), retry_iters(gn)) == (14, 6)
+    caps, real = [], recovery.track_frame
+
+    def spy(*a, iters=None, **k):
+        caps.append(iters)
+        res = real(*a, iters=iters, **k)
+        assert res.iters <= iters * gn.tracking.gn_rounds  # evaluations spent, within the cap
+        return res
+
+    monkeypatch.setattr(recovery, "track_frame", spy)
+    _make_lost(monkeypatch, lambda: s.frames.get(14).depth)
+    s = _system(tiny_seq, ["tracking.optimizer=gauss_newton", "tracking.gn_iters=3", "tracking.iters=7",
+                           "data.prefetch=0"], blank=range(8, 14))
+    try:
+        s.run(progress=False)
+        assert [e["frame"] for e in s.state.events if e.get("relocalised")] == [14] and all(s.state.trusted[14:])
+        assert caps and set(caps) == {6}
+    finally:
+        s.close()
