@@ -11,7 +11,7 @@ import importlib
 import sys
 
 from slam import __version__, _deps
-from slam.errors import SlamInputError
+from slam.errors import SlamInputError, SlamRunError
 
 # module path -> it defines register(subparsers); the order is the order in --help
 _COMMAND_MODULES = (
@@ -76,6 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     except SlamInputError as exc:
         print(f"lrslam {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except SlamRunError as exc:
+        print(f"lrslam {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -15,6 +15,17 @@ class SlamOutputError(SlamInputError):
     was written before is intact. A :class:`SlamInputError` so the CLI reports it as one line too."""
 
 
+class SlamRunError(RuntimeError):
+    """The run cannot go on for a reason outside its input (the mapping process died or failed): the message is one
+    line, the outputs so far are written and the last checkpoint is kept, so ``lrslam run --resume`` goes on from it.
+    ``detail``: more for a bug report (the failing process's traceback), written to ``metrics.json``, not the
+    terminal. The CLI reports it as one line and exits 1."""
+
+    def __init__(self, message: str, detail: str = ""):
+        super().__init__(message)
+        self.detail = detail
+
+
 class MissingDependencyError(ImportError):
     """The SLAM client's dependencies (the ``slam`` extra) are not installed; the message is one line naming
     the missing packages and the install command (see :mod:`slam._deps`)."""

@@ -22,8 +22,11 @@ The results are the thread mode's, bit for bit (same code, same inputs, same ord
 schedule promises holds. Messages are pickled by value over a pipe (no shared-memory handles to leak on long runs;
 a map is a few MB), its tensors as numpy arrays (:mod:`slam.engine.wire`). The child is spawned when the worker is
 made, and it imports its modules and rehearses its calls (:mod:`slam.engine.rehearsal`) before the first frame.
-The child ignores SIGINT: a Ctrl-C is the parent's to handle (it finishes the frame and waits for the call in flight
-before saving). If the child fails, the call's ``result()`` raises with its traceback.
+The child ignores SIGINT and SIGTERM: a Ctrl-C reaches the whole foreground process group, and so does a stop by
+Slurm's ``scancel``, systemd or ``kill -TERM -PGID``, and each is the parent's to handle (it finishes the frame and
+waits for the call in flight before saving). A child that dies (killed, out of memory) or raises makes every later
+call of this object raise :class:`slam.errors.SlamRunError` naming the mapping process (the child's traceback in
+its ``detail``): the replica is lost, so the run stops and resumes from its last checkpoint.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ import traceback
 import torch
 
 from slam.engine.mapper import MapMoments
+from slam.errors import SlamRunError
 from slam.engine.wire import pack_state, unpack_state
 
 __all__ = ["MapProcess"]
@@ -48,6 +52,7 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
     """The child: rehearses its calls (``rehearsal``: ``(aabb, color, depth, pose)``, :mod:`slam.engine.rehearsal`),
     builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from slam.engine.mapper import keep_keyframe, map_frame
     from slam.engine.runtime import keep_freed_memory, set_threads
     from slam.model.growth import apply_growth
@@ -100,7 +105,21 @@ def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
                                   "indices": [kf.index for kf in keyframes.frames]})
         except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
             reply = ("error", traceback.format_exc())
-        conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
+        try:
+            conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
+        except OSError:  # the parent is gone (killed mid-call): nobody is left to answer
+            return
+
+
+def _exit_reason(code: int | None) -> str:
+    """Words for a child's exit code: a signal (``-N``) is named, with the usual cause of a SIGKILL."""
+    if code is None:
+        return "still running, its pipe closed"
+    if code < 0:
+        name = signal.Signals(-code).name if -code in signal.valid_signals() else f"signal {-code}"
+        why = ": killed, perhaps by the system when memory ran out" if -code == signal.SIGKILL else ""
+        return f"{name}{why}"
+    return f"exit code {code}"
 
 
 def _replica(cfg, device: str, body: dict):
@@ -134,7 +153,7 @@ class _Call:
 
     def result(self):
         while self._done is None:
-            self.owner._receive()
+            self.owner._receive()  # raises once the child has failed, for this call and every later one
         return self._done
 
 
@@ -154,6 +173,7 @@ class MapProcess:
         self._replies: queue.Queue = queue.Queue()
         self._outbox: queue.Queue = queue.Queue()
         self._waiting: list[_Call] = []
+        self._failed: SlamRunError | None = None  # the child died or raised: every later request raises this
 
     @property
     def started(self) -> bool:
@@ -231,8 +251,8 @@ class MapProcess:
         """End the child: after its queued calls, or at once (``abort``: their work is lost)."""
         if self._proc is None:
             return
-        if abort:
-            self._proc.terminate()
+        if abort or self._failed is not None:
+            self._proc.kill()  # it ignores SIGTERM (the process group's stop is the parent's to handle)
         else:
             self._send("close", None)  # after the calls queued, as the thread's pool finishes them
         self._proc.join(timeout=None if not abort else 5)
@@ -243,6 +263,7 @@ class MapProcess:
         self._proc = self._conn = self._reader = self._writer = None
         self._waiting = []
         self._replica = self._hello = False
+        self._failed = None
 
     # ------------------------------------------------------------------------------------------------- pipe
     def _send(self, kind: str, body) -> None:
@@ -266,15 +287,24 @@ class MapProcess:
                 return
 
     def _recv(self):
+        if self._failed is not None:
+            raise self._failed
         data = self._replies.get()
-        if data is None:  # the reader saw the pipe close
-            self._replies.put(None)  # every later read sees the end too
+        if data is None:  # the reader saw the pipe close (a reply cut off mid-message too)
             self._proc.join(timeout=5)
-            raise RuntimeError(f"the mapping process ended unexpectedly (exit code {self._proc.exitcode})")
+            self._fail(f"the mapping process (pid {self._proc.pid}) ended unexpectedly "
+                       f"({_exit_reason(self._proc.exitcode)})")
         kind, body = pickle.loads(data)
         if kind == "error":
-            raise RuntimeError(f"the mapping process failed:\n{body}")
+            last = body.strip().splitlines()[-1] if body.strip() else "no message"
+            self._fail(f"the mapping process (pid {self._proc.pid}) failed: {last}", body)
         return kind, body
+
+    def _fail(self, message: str, detail: str = ""):
+        """Stop using the child: its replica is lost or half-updated, so no later reply can be paired with a call."""
+        self._failed = SlamRunError(message, detail)
+        self._waiting = []
+        raise self._failed
 
     def _expect(self, what: str):
         """Wait for the reply ``what`` (to the message just sent) and return its body."""
@@ -286,6 +316,8 @@ class MapProcess:
         return body
 
     def _receive(self) -> None:
+        if self._failed is not None:
+            raise self._failed
         call = self._waiting[0]
         kind, body = self._recv()
         if kind != "done":

@@ -86,9 +86,14 @@ class SLAM:
                                   ahead=cfg.data.prefetch, in_waits=cfg.data.prefetch_in == "waits")
         t0 = time.perf_counter()
         frame0 = (first.color.to(self.device), first.depth.to(self.device), matrix_to_pose(self.c2w0))
-        self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel,
-                                rehearsal=frame0 if cfg.preload_kernels else None)
-        preload(self.scene, cfg, self.intr, frame0, self.mapper)  # and waits for the mapper process's own
+        self.mapper = None
+        try:  # from here on a reader thread, a mapper thread or process and a spill file exist: a failure closes them
+            self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel,
+                                    rehearsal=frame0 if cfg.preload_kernels else None)
+            preload(self.scene, cfg, self.intr, frame0, self.mapper)  # and waits for the mapper process's own
+        except BaseException:
+            self.close(abort=True)
+            raise
         self.preload_s = time.perf_counter() - t0
         self.guard = TrackingGuard(cfg.tracking)
         self.timeline = Timeline(dt=self._dt, keyframes=self._keyframes_when_idle,
@@ -201,10 +206,13 @@ class SLAM:
         self._apply(self.mapper.drain())
 
     def close(self, abort: bool = False) -> None:
-        """Stop the reader and the mapper threads; ``abort`` (a second Ctrl-C) ends a mapping call in progress at
-        its next iteration instead of waiting for it."""
+        """Stop the reader and the mapper (thread or process) and delete the keyframes' spill file (it can hold
+        gigabytes; the spilled images are then gone); ``abort`` (a second Ctrl-C) ends a mapping call in progress at
+        its next iteration instead of waiting for it. Safe to call twice."""
         self.frames.close()
-        self.mapper.close(abort=abort)
+        if self.mapper is not None:
+            self.mapper.close(abort=abort)
+        self.keyframes.close()
 
     def run(self, progress: bool = True, observers: Sequence[Observer] = (), start: int | None = None) -> RunState:
         """Process the selected frames from ``start`` (default: where the state left off), with a progress bar

@@ -13,7 +13,8 @@ A run never loses the work it has done:
   written, and the last checkpoint on disk is the one to resume from;
 * an error inside the loop writes the trajectory so far and a partial ``metrics.json`` (with the error) before it
   propagates; the last checkpoint stays as it was (a state already over ``data.max_bad_fraction`` would only fail
-  again after one frame);
+  again after one frame; a mapping process that died took the map's replica with it). A mapping process that died
+  or failed is :class:`slam.errors.SlamRunError` (one line; its traceback in ``metrics.json``'s ``error_detail``);
 * an output that cannot be written (a full disk) stops the run with :class:`slam.errors.SlamOutputError` naming
   the file; every file written before is intact (:mod:`slam.files`).
 """
@@ -31,7 +32,7 @@ from typing import Sequence
 from slam.run.checkpoint import RESUME_KEYS, load_run, restore, save_checkpoint
 from slam.config import Config, config_from_dict, save_config
 from slam.config.presets import read_yaml
-from slam.errors import SlamInputError
+from slam.errors import SlamInputError, SlamRunError
 from slam.engine.observers import Observer
 from slam.run.outputs import trajectory_metrics, write_frames, write_mesh, write_metrics, write_trajectories
 from slam.engine.setup import load_data, resolve_device
@@ -99,7 +100,8 @@ def resume_config(out: str | Path, overrides: dict | None = None) -> Config:
     return config_from_dict(data, upgrade=True)
 
 
-def _partial_outputs(system: SLAM, out: Path, error: str | None = None, checkpoint: bool = True) -> dict:
+def _partial_outputs(system: SLAM, out: Path, error: str | None = None, checkpoint: bool = True,
+                     detail: str = "") -> dict:
     if checkpoint:
         save_checkpoint(system, out / "checkpoint.pt")
     run = system.view()
@@ -110,6 +112,8 @@ def _partial_outputs(system: SLAM, out: Path, error: str | None = None, checkpoi
     metrics.update(partial=True, frames_done=len(system.state.est), frames_total=len(system.indices))
     if error:
         metrics["error"] = error
+    if detail:
+        metrics["error_detail"] = detail
     write_metrics(metrics, out)
     return metrics
 
@@ -218,7 +222,12 @@ def _loop(system: SLAM, out: Path, cfg: Config, start: int, progress: bool, obse
             system.run(progress=progress, observers=[*observers, *own], start=start)
         except Exception as exc:
             # the last checkpoint stays: this state may be the one that failed (too many bad frames)
-            _partial_outputs(system, out, error=f"{type(exc).__name__}: {exc}", checkpoint=False)
+            _partial_outputs(system, out, error=f"{type(exc).__name__}: {exc}", checkpoint=False,
+                             detail=getattr(exc, "detail", ""))
+            if isinstance(exc, SlamRunError):
+                raise SlamRunError(f"{exc}: stopped after frame {len(system.state.est)} of {len(system.indices)}; "
+                                   f"outputs so far in {out}. Resume from its last checkpoint with: "
+                                   f"lrslam run --resume {out}", exc.detail) from exc
             raise
         if len(system.state.est) < len(system.indices):
             _partial_outputs(system, out)

@@ -103,6 +103,7 @@ def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline
 def test_a_dead_mapper_process_is_an_error_that_names_it(tiny_seq):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
+    from slam.errors import SlamRunError
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true", "mapper_process=true"])
     s = SLAM(cfg, load_data(cfg))
@@ -111,7 +112,7 @@ def test_a_dead_mapper_process_is_an_error_that_names_it(tiny_seq):
         s.step(0)  # the warm-up: the child gets its replica
         s.mapper.wait_idle()
         s.mapper.process._proc.kill()
-        with pytest.raises(RuntimeError, match="mapping process ended unexpectedly"):
+        with pytest.raises(SlamRunError, match=r"mapping process \(pid \d+\) ended unexpectedly \(SIGKILL"):
             for k in range(1, 6):
                 s.step(k)
             s.finish()
@@ -122,3 +123,79 @@ def test_a_dead_mapper_process_is_an_error_that_names_it(tiny_seq):
 def test_mapper_process_needs_parallel():
     with pytest.raises(SlamInputError, match="'mapper_process'"):
         load_config("synthetic", ["parallel=false", "mapper_process=true"])
+
+
+def test_a_failed_call_is_not_paired_with_the_next_reply(tiny_seq):
+    """A call that raised in the child leaves the process unusable: that call and every later one raise the same
+    one-line error naming the mapping process (20b7b9c left the failed call first in its waiting list, so the next
+    call's reply was taken as its own, and the next call waited for ever)."""
+    import threading
+
+    from slam.engine.map_process import MapProcess
+    from slam.engine.map_worker import MapJob
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+    from slam.errors import SlamRunError
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "preload_kernels=false"])
+    s = SLAM(cfg, load_data(cfg))
+    proc = MapProcess(cfg, s.intr, "cpu", lambda job, reply: reply)
+    try:
+        s.step(0)
+        frame = s.frames.get(1)
+        proc.start(s.scene, s.keyframes, s.map_gen)
+        bad = proc.submit(MapJob(1, frame.color[:5], frame.depth, s.state.est[-1], False, True))  # a wrong shape
+        good = proc.submit(MapJob(1, frame.color, frame.depth, s.state.est[-1], False, True))
+        with pytest.raises(SlamRunError, match=r"the mapping process \(pid \d+\) failed: \w+") as info:
+            bad.result()
+        assert "Traceback" in info.value.detail and "\n" not in str(info.value)
+        raised = []
+        waiter = threading.Thread(target=lambda: raised.append(pytest.raises(SlamRunError, good.result)),
+                                  daemon=True)
+        waiter.start()
+        waiter.join(timeout=60)
+        assert raised and raised[0].value is info.value  # the same error, at once
+        with pytest.raises(SlamRunError):
+            proc.moments()
+    finally:
+        proc.close()
+        s.close()
+    assert proc._proc is None
+
+
+def test_a_system_that_fails_to_start_ends_its_mapping_process_and_close_deletes_the_spill_file(tiny_seq, tmp_path,
+                                                                                               monkeypatch):
+    """A start that fails after the child was spawned ends the child; SLAM.close closes the keyframes' spill file,
+    which can hold gigabytes (20b7b9c left both to the garbage collector)."""
+    import slam.engine.system as system_mod
+    from slam.engine.map_process import MapProcess
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true", "mapper_process=true",
+                                    "mapping.every_frame=1", "mapping.keyframe_every=1",
+                                    "mapping.keyframes_in_memory=1", f"mapping.keyframe_spill_dir={tmp_path}"])
+    spawned, real_spawn = [], MapProcess.spawn
+
+    def spawn(self, *a, **k):
+        spawned.append(self)
+        real_spawn(self, *a, **k)
+
+    def failing(*a, **k):
+        raise MemoryError("made to fail by the test")
+
+    monkeypatch.setattr(MapProcess, "spawn", spawn)
+    monkeypatch.setattr(system_mod, "preload", failing)
+    with pytest.raises(MemoryError):
+        SLAM(cfg, load_data(cfg))
+    assert spawned and spawned[0]._proc is None  # killed and joined
+    monkeypatch.undo()
+    s = SLAM(cfg, load_data(cfg))
+    for k in range(4):
+        s.step(k)
+    s.mapper.wait_idle()
+    handle = s.keyframes.spill._fh
+    assert s.keyframes.spilled_bytes > 0 and not handle.closed
+    s.close()
+    assert handle.closed
+    s.close()  # twice is fine
