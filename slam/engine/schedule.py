@@ -7,6 +7,11 @@ above ``need_loss_factor`` times the median of the last :data:`HISTORY` tracked 
 map that has fallen behind the camera). The first frame with depth and the last frame are always mapped. A call
 made only because of the gap (a routine refresh) takes ``need_gap_iters`` iterations where that is set. Every
 input is fixed by the frame numbers and the schedule, never by timing, so both loop modes stay deterministic.
+
+A mapped frame becomes a keyframe (:func:`is_keyframe`) by ESLAM's rule under ``every_frame`` (its position a multiple
+of ``keyframe_every``), and under ``by_need`` once ``keyframe_every`` frames have passed since the last keyframe: the
+calls of that schedule fall on no fixed multiple, and one loss-triggered call would shift every later refresh off
+the multiples for good.
 """
 
 from __future__ import annotations
@@ -44,3 +49,13 @@ def call_iters(k: int, st: RunState, mapping, n_frames: int) -> int | None:
     if reason is None:
         return None
     return mapping.need_gap_iters if reason == "gap" else 0
+
+
+def is_keyframe(k: int, st: RunState, mapping, first: bool) -> bool:
+    """Whether the mapping call of frame position ``k`` (``first``: the warm-up) adds it to the keyframes: see the
+    module's text. ``st``: the run state before the call is recorded (``last_keyframe``)."""
+    if first:
+        return True
+    if mapping.schedule == "every_frame":
+        return k % mapping.keyframe_every == 0
+    return k - st.last_keyframe >= mapping.keyframe_every

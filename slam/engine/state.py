@@ -28,6 +28,7 @@ class RunState:
     prev_depth_k: int = -1  # position of the last trusted frame with depth (ICP's reference)
     reloc_tried_at: int = -1  # position of the last relocalisation attempt
     last_mapped: int = -1  # position of the last frame submitted for mapping (slam.engine.schedule)
+    last_keyframe: int = -1  # position of the last frame submitted as a keyframe (slam.engine.schedule)
     tracking: list = field(default_factory=list)  # per tracked frame: loss, iterations, inlier share
     sizes: list = field(default_factory=list)  # per processed frame: [parameters, field bytes] of the scene then
     prev_depth: torch.Tensor | None = field(default=None, repr=False, metadata={"transient": True})

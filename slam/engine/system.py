@@ -34,7 +34,7 @@ from slam.engine.recovery import TrackInput
 from slam.engine.rehearsal import preload
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
-from slam.engine.schedule import call_iters
+from slam.engine.schedule import call_iters, is_keyframe
 from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
@@ -184,8 +184,11 @@ class SLAM:
         if iters is None:
             return False
         st.last_mapped = k
-        self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first,
-                                  keyframe=first or k % cfg.mapping.keyframe_every == 0, iters=iters))
+        keyframe = is_keyframe(k, st, cfg.mapping, first)
+        if keyframe:
+            st.last_keyframe = k
+        self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first, keyframe=keyframe,
+                                  iters=iters))
         st.initialized = True
         return True
 
@@ -289,6 +292,9 @@ class SLAM:
             first = str(exc).strip().splitlines()[0]
             raise SlamInputError(f"the checkpoint's scene does not fit this run's config ({first})") from None
         self.state = RunState.from_state_dict(run["state"])
+        if "last_keyframe" not in run["state"]:  # a checkpoint from before it was kept: the newest keyframe submitted
+            made = [kf["k"] for kf in run["keyframes"]] + [p["k"] for p in run["pending"] if p["keyframe"]]
+            self.state.last_keyframe = max(made, default=-1)
         self.keyframes.load_state_dict(run, self._readable_images)
         if self.state.prev_depth_k >= 0:
             self.state.prev_depth = self.frames.get(self.state.prev_depth_k).depth

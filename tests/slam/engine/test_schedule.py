@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from slam.engine.schedule import call_iters, mapping_reason
+from slam.engine.schedule import call_iters, is_keyframe, mapping_reason
 from slam.engine.state import RunState
 
 
@@ -58,5 +58,35 @@ def test_the_loop_gives_each_call_its_iterations(tiny_seq):
             s.step(k)
         # frame 0 the warm-up, 1 young (3 iterations), 3 a routine refresh (1), 5 the last frame (3)
         assert {float(v["step"]) for v in s.mapper.moments.state.values()} == {7.0}
+    finally:
+        s.close()
+
+
+def test_by_need_makes_a_keyframe_every_keyframe_every_frames_whatever_positions_its_calls_fall_on(tiny_seq,
+                                                                                                   monkeypatch):
+    """By need, one call off the multiples of ``keyframe_every`` (a loss-triggered one) shifts every later refresh
+    off them too: 20b7b9c, which kept ESLAM's rule (position % keyframe_every == 0), then added no keyframe again
+    (here: frame 0 only, of 16)."""
+    import slam.engine.system as system_mod
+    from slam.config import load_config
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+    from tests.slam.conftest import TINY
+
+    m = SimpleNamespace(schedule="by_need", keyframe_every=4)
+    assert is_keyframe(9, RunState(last_keyframe=-1), m, first=True)
+    assert [k for k in range(3, 16) if is_keyframe(k, RunState(last_keyframe=3), m, False)] == list(range(7, 16))
+    every = SimpleNamespace(schedule="every_frame", keyframe_every=4)  # ESLAM's rule where the calls are fixed
+    assert [k for k in range(1, 13) if is_keyframe(k, RunState(last_keyframe=0), every, False)] == [4, 8, 12]
+
+    mapped = {0, 3, 7, 11, 15}  # a loss-triggered call at 3, then a routine refresh every fourth frame
+    monkeypatch.setattr(system_mod, "call_iters", lambda k, st, mapping, n: 0 if k in mapped else None)
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=16", "parallel=false",
+                                    "mapping.schedule=by_need", "mapping.keyframe_every=4"])
+    s = SLAM(cfg, load_data(cfg))
+    try:
+        s.run(progress=False)
+        assert [kf.index for kf in s.keyframes.frames] == [0, 7, 11, 15]
+        assert s.state.last_keyframe == 15
     finally:
         s.close()
