@@ -35,7 +35,8 @@ from slam.engine.rehearsal import preload
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import call_iters, is_keyframe
-from slam.engine.setup import check_edges, data_fingerprint, frame_indices, initial_pose, scene_bound
+from slam.engine.setup import (check_edges, data_fingerprint, fingerprint_mismatch, frame_indices, initial_pose,
+                               scene_bound)
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
 from slam.engine.tracking_guard import TrackingGuard
@@ -279,10 +280,10 @@ class SLAM:
         Raises:
             SlamInputError: the data differ from the checkpointed run's, the map does not fit this config, or a
                 keyframe can no longer be read."""
-        fingerprint = data_fingerprint(self.ds, self.indices)
-        if run["fingerprint"] != fingerprint:
-            raise SlamInputError(f"the data differ from the checkpointed run's ({run['fingerprint']} vs "
-                                 f"{fingerprint}): resume with the same data folder and config")
+        why = fingerprint_mismatch(run["fingerprint"], self.ds, self.indices)
+        if why:
+            raise SlamInputError(f"the data differ from the checkpointed run's ({why}): resume with the same data "
+                                 "folder and config")
         try:
             with torch.no_grad():
                 fit_to_state(self.scene, scene)  # a grown map: its size first
