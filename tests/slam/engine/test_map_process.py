@@ -199,3 +199,29 @@ def test_a_system_that_fails_to_start_ends_its_mapping_process_and_close_deletes
     s.close()
     assert handle.closed
     s.close()  # twice is fine
+
+
+def test_the_public_switches_together_give_the_thread_modes_run_in_a_process_through_a_stop(tiny_seq, tmp_path):
+    """The switches no preset turns on, where they meet the mapper process: a bounded keyframe store
+    (``max_keyframes``: the child drops, the loop mirrors), keyframes spilled to disk, mapping by need with
+    ``keyframe_every`` > 1, the Gauss-Newton tracker and carried moments; stopped and resumed. The process run is
+    the thread run, byte for byte, with the same keyframes and poses."""
+    from slam.run.checkpoint import load_run
+    from slam.run.runner import RunInterrupted, run_to_folder
+
+    run = [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=24", "parallel=true", "mapping.max_keyframes=4",
+           "mapping.keyframes_in_memory=1", f"mapping.keyframe_spill_dir={tmp_path}", "mapping.schedule=by_need",
+           "mapping.need_young=2", "mapping.need_max_gap=2", "mapping.keyframe_every=2",
+           "mapping.optimizer_state=persistent", "tracking.optimizer=gauss_newton", "tracking.gn_iters=3"]
+    full = run_to_folder(load_config("synthetic", run), tmp_path / "thread", progress=False, mesh=False)
+    proc = load_config("synthetic", [*run, "mapper_process=true"])
+    out = tmp_path / "process"
+    with pytest.raises(RunInterrupted):
+        run_to_folder(proc, out, progress=False, mesh=False, stop_after=9)
+    run_to_folder(proc, out, progress=False, mesh=False, resume=True)
+    assert _traj(out) == _traj(tmp_path / "thread")
+    a, b = (load_run(d / "checkpoint.pt")["extra"]["run"] for d in (tmp_path / "thread", out))
+    assert [k["k"] for k in a["keyframes"]] == [k["k"] for k in b["keyframes"]]
+    assert all(torch.equal(x["pose"], y["pose"]) for x, y in zip(a["keyframes"], b["keyframes"]))
+    assert a["keyframes_dropped"] == b["keyframes_dropped"] > 0 and len(a["keyframes"]) == 4
+    assert full["mapping_calls"] < 24  # by need: not every frame was mapped
