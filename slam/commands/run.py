@@ -45,6 +45,11 @@ def register(subparsers) -> None:
     p.add_argument("--stop-after", metavar="N", type=int, default=None,
                    help="stop like Ctrl-C once N frames are done (outputs so far, a checkpoint; exit 0): split a "
                         "long run into time-boxed jobs with --resume")
+    p.add_argument("--realtime", action="store_true",
+                   help="replay the data at their recorded rate as a live camera delivers them (data.realtime=true): "
+                        "the newest frame that has arrived is processed next and the ones it passed are dropped; "
+                        "metrics.json's 'realtime' holds frames processed and dropped and the latency from a "
+                        "frame's arrival to its pose; the trajectory holds the processed frames")
     p.add_argument("--no-mesh", action="store_true", help="skip mesh extraction and reconstruction metrics")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     v = p.add_argument_group("Rerun viewer (needs rerun-sdk: the viewer extra)")
@@ -72,7 +77,8 @@ def main(args) -> int:
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if args.resume is not None:
-        given = [flag for flag, v in (("--config", args.config), ("--data", args.data), ("--out", args.out)) if v]
+        given = [flag for flag, v in (("--config", args.config), ("--data", args.data), ("--out", args.out),
+                                      ("--realtime", args.realtime)) if v]
         if given:
             raise SlamInputError(f"--resume continues a run with its own config and data; drop {', '.join(given)}")
         out = Path(args.resume)
@@ -89,6 +95,8 @@ def main(args) -> int:
             overrides.append(f"data.path={args.data}")
         if args.device is not None:
             overrides.append(f"device={args.device}")
+        if args.realtime:
+            overrides.append("data.realtime=true")
         cfg = load_config(args.config or "synthetic", overrides)
         check_spill_dir(cfg)
         out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"

@@ -51,6 +51,9 @@ class DataConfig:
     # ours (slam/engine/frames.py): read them on a background thread, or in the tracker's waits for the mapper
     # (waits: no thread beside the tracker; the same frames)
     prefetch_in: str = choice("thread", ("thread", "waits"))
+    # ours (slam/engine/realtime.py): replay the frames at their recorded rate as a live camera delivers them; the
+    # newest frame that has arrived is processed next, the ones it passed are dropped (frames are then read on demand)
+    realtime: bool = False
     options: dict = field(default_factory=dict)
 
 

@@ -31,6 +31,7 @@ from slam.engine.keyframes import KeyframeStore
 from slam.engine.map_worker import MapJob, MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
+from slam.engine.realtime import Replay, arrival_times
 from slam.engine.rehearsal import preload
 from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
@@ -59,6 +60,7 @@ class SLAM:
     def __init__(self, cfg: Config, dataset, device: torch.device | str = "cpu"):
         self.cfg, self.ds, self.device = cfg, dataset, torch.device(device)
         self.indices = frame_indices(len(dataset), cfg)
+        self.selection = list(self.indices)  # the frames selected; data.realtime passes over some (self.indices)
         set_threads(cfg.threads)
         float_fingerprint()  # taken now, before the mapper's thread runs: metrics.json records it
         if cfg.keep_freed_memory:
@@ -83,8 +85,12 @@ class SLAM:
         self.scene = SceneModel(cfg, self.aabb).to(self.device)
         self.size = scene_size(self.scene)  # (parameters, field bytes), after each growth too
         self.keyframes = KeyframeStore.for_mapping(cfg.mapping)
+        # a real-time replay reads a frame once it is taken: the frames read ahead might be passed over
+        realtime = cfg.data.realtime
         self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
-                                  ahead=cfg.data.prefetch, in_waits=cfg.data.prefetch_in == "waits")
+                                  ahead=0 if realtime else cfg.data.prefetch,
+                                  in_waits=cfg.data.prefetch_in == "waits" and not realtime)
+        self.replay = Replay(arrival_times(self.selection, ts)) if realtime else None
         t0 = time.perf_counter()
         frame0 = (first.color.to(self.device), first.depth.to(self.device), matrix_to_pose(self.c2w0))
         self.mapper = None
@@ -122,6 +128,29 @@ class SLAM:
         if self.timestamps is None or k == 0:
             return (self.indices[k] - self.indices[j]) / 30.0
         return float(self.timestamps[k]) - float(self.timestamps[j])
+
+    def _pass_over(self, positions: list[int]) -> None:
+        """Frames at these positions (not processed yet) arrived while the loop was busy and are never taken
+        (``data.realtime``): they leave the frames to process, and ``state.dropped`` lists them."""
+        if not positions:
+            return
+        gone = set(positions)
+        keep = [k for k in range(len(self.indices)) if k not in gone]
+        self.state.dropped.extend(int(self.indices[k]) for k in sorted(gone))
+        self.indices[:] = [self.indices[k] for k in keep]
+        self.frames.indices[:] = self.indices
+        if self.gt is not None:
+            self.gt = self.gt[keep]
+        if self.timestamps is not None:
+            self.timestamps = self.timestamps[keep]
+
+    def _take(self, k: int) -> float:
+        """Real-time replay: wait for the frame at position ``k`` to arrive, pass over the frames that arrived before
+        the newest one that has, which becomes frame ``k``; returns its arrival time."""
+        p = k + len(self.state.dropped)  # its position in the selection (only frames before it were passed over)
+        q = self.replay.take(p)
+        self._pass_over(list(range(k, k + q - p)))
+        return self.replay.arrival(q)
 
     def _keyframes_when_idle(self) -> list:
         self.mapper.wait_idle()
@@ -226,12 +255,17 @@ class SLAM:
         from tqdm import tqdm
 
         start = len(self.state.est) if start is None else start
-        bar = tqdm(range(start, len(self.indices)), disable=not progress, unit="frame", dynamic_ncols=True,
+        bar = tqdm(disable=not progress, unit="frame", dynamic_ncols=True,
                    desc=f"lrslam [{self.cfg.representation}]", initial=start, total=len(self.indices))
         try:
-            for k in bar:
+            k = start
+            while k < len(self.indices):  # not a range: a real-time replay passes over frames as it goes
+                arrived = self._take(k) if self.replay is not None else None
+                bar.total = len(self.indices)
                 t0 = time.perf_counter()
                 rec = self.step(k)
+                if arrived is not None:
+                    self.state.latency.append(float(self.replay.now() - arrived))  # a plain float: checkpoints
                 if self.cfg.trim_memory_every and (k + 1) % self.cfg.trim_memory_every == 0:
                     release_freed_memory()  # bounds the heap's fragmentation on long runs (slam.engine.runtime)
                 rec.dt = time.perf_counter() - t0
@@ -240,9 +274,11 @@ class SLAM:
                 view = self.view()
                 for obs in observers:
                     obs.on_frame(view, rec)
+                bar.update(1)
                 bar.set_postfix_str(f"frame {self.indices[k]}  ATE {rec.ate_m * 100:.2f} cm  {rec.dt:.2f} s/frame")
                 if k + 1 < len(self.indices) and any(obs.stop_requested() for obs in observers):
                     return self.state
+                k += 1
         finally:
             bar.close()
         self.finish()
@@ -271,7 +307,7 @@ class SLAM:
         return {"state": self.state.state_dict(), **self.keyframes.state_dict(), **self.mapper.state_dict(),
                 "guard": self.guard.state_dict(), "rng": rng_state(self.gen, self.map_gen),
                 "growth": {**self.growth.state_dict(), "bound": self.bound, "mc_bound": self.mc_bound,
-                           "aabb": self.aabb.clone()}, "fingerprint": data_fingerprint(self.ds, self.indices)}
+                           "aabb": self.aabb.clone()}, "fingerprint": data_fingerprint(self.ds, self.selection)}
 
     def load_state_dict(self, run: dict, scene: dict) -> None:
         """Put this freshly built system (same config and data) into a :meth:`state_dict`'s state, with the
@@ -280,7 +316,7 @@ class SLAM:
         Raises:
             SlamInputError: the data differ from the checkpointed run's, the map does not fit this config, or a
                 keyframe can no longer be read."""
-        why = fingerprint_mismatch(run["fingerprint"], self.ds, self.indices)
+        why = fingerprint_mismatch(run["fingerprint"], self.ds, self.selection)
         if why:
             raise SlamInputError(f"the data differ from the checkpointed run's ({why}): resume with the same data "
                                  "folder and config")
@@ -293,6 +329,8 @@ class SLAM:
             first = str(exc).strip().splitlines()[0]
             raise SlamInputError(f"the checkpoint's scene does not fit this run's config ({first})") from None
         self.state = RunState.from_state_dict(run["state"])
+        dropped, self.state.dropped = set(self.state.dropped), []  # a real-time run's: the same frames passed over
+        self._pass_over([k for k, i in enumerate(self.indices) if i in dropped])
         if "last_keyframe" not in run["state"]:  # a checkpoint from before it was kept: the newest keyframe submitted
             made = [kf["k"] for kf in run["keyframes"]] + [p["k"] for p in run["pending"] if p["keyframe"]]
             self.state.last_keyframe = max(made, default=-1)

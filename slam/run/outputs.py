@@ -62,6 +62,10 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
         "frames_lost": sum(1 for e in run.state.events if e.get("lost")),
         "frames_recovered": sum(1 for e in run.state.events if e.get("recovered")),
     }
+    if cfg.data.realtime:
+        from slam.engine.realtime import latency_summary
+
+        metrics["realtime"] = latency_summary(run.state.latency, len(run.state.dropped))
     metrics.update(ate_rmse_m=None, ate_mean_m=None)
     if run.gt is not None and len(run.state.est) >= 3:
         poses = run.poses()

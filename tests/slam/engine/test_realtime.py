@@ -1,0 +1,112 @@
+"""Real-time replay (slam/engine/realtime.py, ``data.realtime``): frames arrive at their recorded rate, the loop
+takes the newest one that has arrived and passes over the ones it missed; the trajectory holds the processed
+frames, ``metrics.json`` counts both and the latency from arrival to pose. Timed here by a simulated clock, so the
+frames taken are exact."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from slam.config import load_config
+from slam.engine.realtime import Replay, arrival_times, latency_summary
+from tests.slam.conftest import TINY
+
+
+class Clock:
+    """Simulated seconds: ``sleep`` moves time on, and so does each processed frame (``cost`` seconds)."""
+
+    def __init__(self, cost: float):
+        self.t, self.cost, self.slept = 0.0, cost, []
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, s: float) -> None:
+        self.slept.append(s)
+        self.t += s
+
+
+def test_the_newest_frame_that_has_arrived_is_taken_and_a_fast_loop_waits():
+    times = arrival_times([0, 1, 2, 3, 4, 5, 6], None)  # no timestamps: 30 Hz per dataset frame
+    assert np.allclose(times, np.arange(7) / 30)
+    assert np.allclose(arrival_times([2, 4], [10.0, 10.5, 11.0, 11.2, 11.25]), [0.0, 0.25])
+    clock = Clock(0.0)
+    r = Replay(times, clock.now, clock.sleep)
+    assert r.take(0) == 0 and clock.slept == []  # the first frame arrives when the clock starts
+    clock.t = 0.105  # a frame took 105 ms: frames 1-3 arrived meanwhile, 3 is the newest
+    assert r.take(1) == 3
+    assert r.take(4) == 4 and clock.slept == [pytest.approx(4 / 30 - 0.105)]  # faster than the camera: it waits
+    r.start(5)  # a resumed run: the clock restarts with frame 5 arriving now
+    assert r.arrival(5) == clock.t and r.take(5) == 5
+    assert latency_summary([0.1, 0.2, 0.3], 4) == {"frames_processed": 3, "frames_dropped": 4,
+                                                   "latency_median_s": 0.2, "latency_p95_s": 0.29,
+                                                   "latency_max_s": 0.3}
+
+
+def _simulated(monkeypatch, cost: float) -> Clock:
+    """Make the loop's replay run on a simulated clock where each frame costs ``cost`` seconds."""
+    import slam.engine.system as system_mod
+
+    clock = Clock(cost)
+    monkeypatch.setattr(system_mod, "Replay", lambda times: Replay(times, clock.now, clock.sleep))
+    real_step = system_mod.SLAM.step
+
+    def step(self, k):
+        rec = real_step(self, k)
+        clock.t += clock.cost
+        return rec
+
+    monkeypatch.setattr(system_mod.SLAM, "step", step)
+    return clock
+
+
+@pytest.mark.parametrize("parallel", ["true", "false"])
+def test_a_slow_loop_drops_the_frames_it_missed_and_reports_them(tiny_seq, tmp_path, monkeypatch, parallel):
+    """105 ms a frame against a 30 Hz camera: frames 0, 3, 6, 9 and the last (11) are processed, the other seven
+    dropped, each processed frame's pose 105 ms after it was taken (later than its arrival by the wait)."""
+    from slam.run.runner import run_to_folder
+
+    _simulated(monkeypatch, 0.105)
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=12", f"parallel={parallel}",
+                                    "data.realtime=true", "mapping.every_frame=2"])
+    m = run_to_folder(cfg, tmp_path / "rt", progress=False, mesh=False)
+    rows = [ln.split()[0] for ln in (tmp_path / "rt" / "trajectory.txt").read_text().splitlines()
+            if not ln.startswith("#")]
+    gt_rows = [ln.split()[0] for ln in (tmp_path / "rt" / "trajectory_gt.txt").read_text().splitlines()
+               if not ln.startswith("#")]
+    assert m["num_frames"] == 5 and len(rows) == 5 and rows == gt_rows
+    csv = (tmp_path / "rt" / "frames.csv").read_text().splitlines()
+    assert [int(r.split(",")[1]) for r in csv[1:]] == [0, 3, 6, 9, 11]
+    rt = m["realtime"]
+    assert rt["frames_processed"] == 5 and rt["frames_dropped"] == 7
+    # from arrival to pose: frame 0 0.105 s, 3 (arrived 0.100, posed 0.210) 0.110, 6 0.115, 9 0.120, and 11
+    # (arrived 0.367, posed 0.525) 0.158
+    assert rt["latency_max_s"] == pytest.approx(0.525 - 11 / 30, abs=1e-4)
+    assert rt["latency_median_s"] == pytest.approx(0.115, abs=1e-4)
+    assert m["ate_rmse_m"] is not None and m["ate_rmse_m"] < 0.05
+    saved = json.loads((tmp_path / "rt" / "metrics.json").read_text())
+    assert saved["realtime"] == rt
+
+
+def test_a_stopped_real_time_run_resumes_from_the_frames_it_processed(tiny_seq, tmp_path, monkeypatch):
+    """The frames passed over before a stop stay passed over; the clock restarts at the resumed frame."""
+    from slam.run.checkpoint import load_run
+    from slam.run.runner import RunInterrupted, run_to_folder
+
+    clock = _simulated(monkeypatch, 0.105)
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=12", "parallel=true",
+                                    "data.realtime=true"])
+    out = tmp_path / "rt"
+    with pytest.raises(RunInterrupted):
+        run_to_folder(cfg, out, progress=False, mesh=False, stop_after=2)
+    state = load_run(out / "checkpoint.pt")["extra"]["run"]["state"]
+    assert state["dropped"] == [1, 2] and len(state["latency"]) == 2
+    clock.t += 100.0  # a resume hours later: nothing arrived while the run was stopped
+    m = run_to_folder(cfg, out, progress=False, mesh=False, resume=True)
+    csv = (out / "frames.csv").read_text().splitlines()
+    # resumed at frame 4, which arrives as the clock restarts: 4, then 7, 10 and the last
+    assert [int(r.split(",")[1]) for r in csv[1:]] == [0, 3, 4, 7, 10, 11]
+    assert m["realtime"]["frames_dropped"] == 6 and m["realtime"]["frames_processed"] == 6
+    assert torch.isfinite(torch.tensor(m["ate_rmse_m"]))
