@@ -88,7 +88,9 @@ COMMON_OPTIONS = ("crop_size", "crop_edge", "undistort", "stride", "max_frames")
 class RGBDDataset:
     """A sequence of RGB-D frames on disk; ``ds[i]`` reads and processes frame ``i``.
 
-    Subclasses only find the files and poses; this class applies the reference processing order
+    Subclasses only find the files and poses (or, for frames not stored as image files, give them through
+    :meth:`raw_color` / :meth:`raw_depth`, calling :meth:`_select` and :meth:`_set_camera` instead of :meth:`_setup`);
+    this class applies the reference processing order
     (docs/data.md, "Common keyword options (every loader)"): colour resized to the depth size, colour undistorted
     (depth is not; it is registered to the colour camera), optional resize to ``crop_size`` (colour bilinear,
     depth nearest), then ``crop_edge`` pixels removed from every border. ``intrinsics`` follow every step.
@@ -129,30 +131,37 @@ class RGBDDataset:
             raise SlamInputError(
                 f"{self.root}: {len(color_paths)} colour images but {len(depth_paths)} depth images"
             )
-        if len(color_paths) == 0:
-            raise SlamInputError(f"{self.root}: no frames found")
-        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-        if len(poses) != len(color_paths):
-            raise SlamInputError(f"{self.root}: {len(color_paths)} frames but {len(poses)} ground-truth poses")
-        check_rigid(poses, str(pose_source or self.root), tol=1e-3, allow_nan=allow_invalid_poses)
-        if stride < 1:
-            raise SlamInputError(f"{self.root}: stride must be >= 1, got {stride}")
-        sel = np.arange(0, len(color_paths), stride)
-        if max_frames is not None:
-            sel = sel[: int(max_frames)]
+        sel = self._select(len(color_paths), poses, timestamps, stride, max_frames, allow_invalid_poses, pose_source)
         self._color_paths = [Path(color_paths[i]) for i in sel]
         self._depth_paths = [Path(depth_paths[i]) for i in sel]
         # fail at open time, not halfway through a run
         for p in self._color_paths + self._depth_paths:
             if not p.is_file():
                 raise SlamInputError(f"{p}: image file not found (listed by {self.root})")
-        self._poses = torch.tensor(poses[sel], dtype=torch.float32)
-        self.timestamps = [float(timestamps[i]) for i in sel]
         if depth_scale <= 0:
             raise SlamInputError(f"{self.root}: depth scale must be positive, got {depth_scale}")
         self.depth_scale = float(depth_scale)
         self._set_camera(intrinsics, distortion if undistort else None, crop_size, crop_edge)
         log.debug("opened %r (raw camera %s, distortion %s)", self, intrinsics, self.distortion)
+
+    def _select(self, n: int, poses, timestamps: Sequence[float], stride: int, max_frames: int | None,
+                allow_invalid_poses: bool, pose_source: Path | None) -> np.ndarray:
+        """The indices of the frames kept of the ``n`` found (``stride``, ``max_frames``); sets ``_poses`` (from
+        ``poses [n, 4, 4]`` camera-to-world, checked rigid) and ``timestamps`` (seconds) of those frames."""
+        if n == 0:
+            raise SlamInputError(f"{self.root}: no frames found")
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+        if len(poses) != n:
+            raise SlamInputError(f"{self.root}: {n} frames but {len(poses)} ground-truth poses")
+        check_rigid(poses, str(pose_source or self.root), tol=1e-3, allow_nan=allow_invalid_poses)
+        if stride < 1:
+            raise SlamInputError(f"{self.root}: stride must be >= 1, got {stride}")
+        sel = np.arange(0, n, stride)
+        if max_frames is not None:
+            sel = sel[: int(max_frames)]
+        self._poses = torch.tensor(poses[sel], dtype=torch.float32)
+        self.timestamps = [float(timestamps[i]) for i in sel]
+        return sel
 
     def _set_camera(self, intrinsics: Intrinsics, distortion: Sequence[float] | None,
                     crop_size: tuple[int, int] | None, crop_edge: int) -> None:
@@ -174,7 +183,7 @@ class RGBDDataset:
 
     # --- sequence protocol -------------------------------------------------------------------------------
     def __len__(self) -> int:
-        return len(self._color_paths)
+        return len(self.timestamps)
 
     def __getitem__(self, i: int) -> Frame:
         n = len(self)
@@ -217,10 +226,18 @@ class RGBDDataset:
         return f"{type(self).__name__}({str(self.root)!r}, frames={len(self)}, {k.height}x{k.width}, fx={k.fx:.2f})"
 
     # --- image processing ---------------------------------------------------------------------------------
+    def raw_depth(self, i: int) -> torch.Tensor:
+        """Depth of frame ``i`` as stored: ``[h, w]`` float32 metres at the raw camera size, 0 = invalid."""
+        raw = read_depth(self._depth_paths[i], (self.raw_intrinsics.height, self.raw_intrinsics.width))
+        return torch.from_numpy(raw.astype(np.float32)) / self.depth_scale
+
+    def raw_color(self, i: int) -> np.ndarray:
+        """Colour of frame ``i`` as stored: ``[h, w, 3]`` uint8 RGB (any size; :meth:`load_color` resizes it)."""
+        return read_color(self._color_paths[i])
+
     def load_depth(self, i: int) -> torch.Tensor:
         """Depth of frame ``i``: ``[H, W]`` float32 metres, 0 = invalid."""
-        raw = read_depth(self._depth_paths[i], (self.raw_intrinsics.height, self.raw_intrinsics.width))
-        depth = torch.from_numpy(raw.astype(np.float32)) / self.depth_scale
+        depth = self.raw_depth(i)
         if self.crop_size is not None and tuple(depth.shape) != self.crop_size:
             # nearest keeps depth edges sharp and holes as holes
             depth = F.interpolate(depth[None, None], size=self.crop_size, mode="nearest")[0, 0]
@@ -228,7 +245,7 @@ class RGBDDataset:
 
     def load_color(self, i: int) -> torch.Tensor:
         """Colour of frame ``i``: ``[H, W, 3]`` float32 RGB in [0, 1]."""
-        raw = read_color(self._color_paths[i])
+        raw = self.raw_color(i)
         img = torch.from_numpy(np.ascontiguousarray(raw)).permute(2, 0, 1)[None].float() / 255.0
         h, w = self.raw_intrinsics.height, self.raw_intrinsics.width
         if img.shape[-2:] != (h, w):

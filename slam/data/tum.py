@@ -34,8 +34,8 @@ import re
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
+from slam.data.association import nearest, poses_at, spaced
 from slam.data.base import RGBDDataset
 from slam.data.calibration import (
     CALIBRATION_FILE, parse_depth_scale, parse_distortion, parse_intrinsics, read_calibration,
@@ -43,7 +43,6 @@ from slam.data.calibration import (
 from slam.data.tum_format import ASSOCIATION_FILES, read_associations, read_tum_list, read_tum_poses
 from slam.data.types import Intrinsics
 from slam.errors import SlamInputError
-from slam.core.geometry import poses_from_tum
 
 __all__ = ["TUMDataset", "TUM_CAMERAS", "TUM_DEPTH_SCALE", "looks_like", "read_tum_list"]
 
@@ -83,7 +82,7 @@ def _pairs(root: Path, association: str, max_dt: float):
         raise SlamInputError(f"{root}: rgb.txt has {len(rgb_ts)} and depth.txt {len(depth_ts)} entries")
     order = np.argsort(depth_ts, kind="stable")
     dts = depth_ts[order]
-    nd = order[_nearest(dts, rgb_ts)] if len(dts) > 1 else np.zeros(len(rgb_ts), dtype=np.int64)
+    nd = order[nearest(dts, rgb_ts)] if len(dts) > 1 else np.zeros(len(rgb_ts), dtype=np.int64)
     keep = np.abs(depth_ts[nd] - rgb_ts) < max_dt
     rgb_files = [f for f, k in zip(rgb_files, keep) if k]
     depth_files = [dfiles[j] for j, k in zip(nd, keep) if k]
@@ -100,56 +99,11 @@ def _ground_truth(root: Path, rgb_ts: np.ndarray, max_dt: float, interpolate: bo
         return None, np.zeros(0), np.full((len(rgb_ts), 4, 4), np.nan), np.ones(len(rgb_ts), dtype=bool)
     data = read_tum_poses(gt_path, what="ground-truth row")
     data = data[np.argsort(data[:, 0], kind="stable")]
-    poses, has_gt = _gt_at(data[:, 0], data[:, 1:8], rgb_ts, max_dt, interpolate)
+    poses, has_gt = poses_at(data[:, 0], data[:, 1:8], rgb_ts, max_dt, interpolate)
     if not has_gt.all():
         log.info("%s: %d of %d frames have no ground truth within %.3f s and are dropped",
                  root, int((~has_gt).sum()), len(has_gt), max_dt)
     return gt_path, data[:, 0], poses, has_gt
-
-
-def _spaced(rgb_ts: np.ndarray, keep: np.ndarray, min_dt: float) -> np.ndarray:
-    """``keep`` without the frames closer than ``min_dt`` seconds to the previous kept one."""
-    keep = keep.copy()
-    last = -np.inf
-    for k in range(len(rgb_ts)):
-        if keep[k]:
-            if rgb_ts[k] - last < min_dt:
-                keep[k] = False
-            else:
-                last = rgb_ts[k]
-    return keep
-
-
-def _nearest(sorted_ts: np.ndarray, query: np.ndarray) -> np.ndarray:
-    j = np.clip(np.searchsorted(sorted_ts, query), 1, len(sorted_ts) - 1)
-    left = sorted_ts[j - 1]
-    right = sorted_ts[j]
-    return np.where(np.abs(query - left) <= np.abs(right - query), j - 1, j)
-
-
-def _gt_at(gt_ts: np.ndarray, gt_rows: np.ndarray, query: np.ndarray, max_dt: float, interpolate: bool):
-    """Poses ``[N, 4, 4]`` at ``query`` times and a ``[N]`` mask of times with ground truth within max_dt."""
-    near = _nearest(gt_ts, query) if len(gt_ts) > 1 else np.zeros(len(query), dtype=np.int64)
-    ok = np.abs(gt_ts[near] - query) < max_dt
-    poses = poses_from_tum(gt_rows[near])
-    if interpolate and len(gt_ts) > 1:
-        j = np.searchsorted(gt_ts, query, side="right")
-        inner = (j > 0) & (j < len(gt_ts))
-        jj = np.clip(j, 1, len(gt_ts) - 1)
-        t0, t1 = gt_ts[jj - 1], gt_ts[jj]
-        inner &= (query - t0 < max_dt) & (t1 - query < max_dt) & (t1 > t0)
-        if inner.any():
-            k = np.flatnonzero(inner)
-            a = ((query[k] - t0[k]) / (t1[k] - t0[k]))[:, None]
-            pos = (1 - a) * gt_rows[jj[k] - 1, :3] + a * gt_rows[jj[k], :3]
-            rots = []
-            for kk, aa in zip(k, a[:, 0]):
-                key = Rotation.from_quat(gt_rows[[jj[kk] - 1, jj[kk]], 3:7])
-                rots.append(Slerp([0.0, 1.0], key)([aa]).as_matrix()[0])
-            poses[k, :3, :3] = np.stack(rots)
-            poses[k, :3, 3] = pos
-            ok |= inner
-    return poses, ok
 
 
 def _image_size(path: Path) -> tuple[int, int]:
@@ -222,7 +176,7 @@ class TUMDataset(RGBDDataset):
         rgb_ts, rgb_files, depth_files, source, n_rgb, use_file = _pairs(root, association, max_dt)
         gt_path, gt_ts, poses, keep = _ground_truth(root, rgb_ts, max_dt, interpolate_gt)
         if not use_file and min_dt > 0:
-            keep = _spaced(rgb_ts, keep, min_dt)
+            keep = spaced(rgb_ts, keep, min_dt)
         if not keep.any():
             # a recording without groundtruth.txt gets here when no colour frame has a depth frame within max_dt
             gt_span = f"ground truth {gt_ts[0]:.3f}..{gt_ts[-1]:.3f}" if len(gt_ts) else "no ground truth"
