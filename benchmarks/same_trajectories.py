@@ -41,10 +41,12 @@ SEQUENCES = {
 
 
 def run_one(preset: str, data: Path | None, parallel: bool | None, frames: int, out: Path, seed: int | None = None,
-            tree: Path = ROOT) -> tuple[str, float]:
+            tree: Path = ROOT, extra: list[str] = ()) -> tuple[str, float]:
     """``(sha256 of trajectory.txt, ATE RMSE in cm)`` of one ``lrslam run`` of the code in ``tree`` (``parallel``
-    None: the preset's loop mode; ``frames`` 0: every frame; ``seed`` None: the preset's)."""
-    cmd = [sys.executable, "-m", "slam", "run", "--config", preset, "--out", str(out), "--no-mesh", "--quiet"]
+    None: the preset's loop mode; ``frames`` 0: every frame; ``seed`` None: the preset's; ``extra``: more
+    ``key=value`` overrides)."""
+    cmd = [sys.executable, "-m", "slam", "run", "--config", preset, "--out", str(out), "--no-mesh", "--quiet",
+           *extra]
     cmd += [f"data.max_frames={frames}"] if frames else []
     cmd += [] if parallel is None else [f"parallel={str(parallel).lower()}"]
     cmd += [] if seed is None else [f"seed={seed}"]
@@ -67,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, help="run seeds 0 ... N-1 of each case (default: the preset's seed)")
     ap.add_argument("--modes", nargs="+", choices=["serial", "parallel", "preset"], default=["serial", "parallel"],
                     help="loop modes (preset: the preset's own, for a preset whose mapper process needs parallel)")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="overrides for every run (e.g. mapper_process=false, to compare two settings' hashes)")
     ap.add_argument("--tree", type=Path, default=ROOT,
                     help="the source tree whose code runs (a worktree of the baseline commit; default: this one)")
     args = ap.parse_args(argv)
@@ -82,11 +86,11 @@ def main(argv: list[str] | None = None) -> int:
                     t0 = time.perf_counter()
                     parallel = None if mode == "preset" else mode == "parallel"
                     hashes[case], ates[case] = run_one(preset, data, parallel, args.frames, Path(tmp) / case, seed,
-                                                       args.tree.resolve())
+                                                       args.tree.resolve(), args.set)
                     print(f"{case:34s} {hashes[case][:16]}  ATE {ates[case]} cm  {time.perf_counter() - t0:5.1f} s",
                           flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"frames": args.frames, "preset": args.preset, "tree": str(args.tree),
+    args.out.write_text(json.dumps({"frames": args.frames, "preset": args.preset, "set": args.set, "tree": str(args.tree),
                                     "hashes": hashes, "ate_cm": ates}, indent=1) + "\n")
     if args.against is None:
         return 0
