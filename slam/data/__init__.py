@@ -6,11 +6,12 @@ convention** (x right, y down, z forward; no axis flips anywhere), :class:`Intri
 seconds and the frame index. See ``docs/data.md``.
 
 Sources: Replica (and the synthetic room), TUM RGB-D (and TUM-format recordings of any camera,
-:class:`TUMWriter`), ScanNet, 7-Scenes: one entry each in :data:`DATASETS` (:mod:`slam.data.registry`, which
-says how to add one). Datasets: ``len(ds)``, ``ds[i]``, ``ds.intrinsics``, ``ds.timestamps``,
+:class:`TUMWriter`), ScanNet, 7-Scenes, ROS 1 and 2 bags (:class:`BagDataset`, the ``bags`` extra): one entry
+each in :data:`DATASETS` (:mod:`slam.data.registry`, which says how to add one). Datasets: ``len(ds)``, ``ds[i]``, ``ds.intrinsics``, ``ds.timestamps``,
 ``ds.gt_poses [N, 4, 4]``, ``ds.name``, ``ds.gt_mesh_path`` (Path or None).
 """
 
+from slam.data.bag import BagDataset
 from slam.data.base import RGBDDataset
 from slam.data.loader import detect_layout, load_dataset
 from slam.data.registry import DATASETS, REFERENCE_OPTIONS, DatasetKind
@@ -30,6 +31,7 @@ __all__ = [
     "TUMWriter",
     "ScanNetDataset",
     "SevenScenesDataset",
+    "BagDataset",
     "load_dataset",
     "detect_layout",
     "DATASETS",

@@ -12,13 +12,18 @@ __all__ = ["detect_layout", "load_dataset"]
 
 def detect_layout(path) -> str:
     """The name of the first dataset in :data:`~slam.data.registry.DATASETS` whose probe accepts the folder
-    (``"replica"``, ``"tum"``, ``"scannet"``, ``"7scenes"``...); SlamInputError naming it otherwise."""
+    (``"replica"``, ``"tum"``, ``"scannet"``, ``"7scenes"``, ``"bag"``...) or file (``"bag"``: a ROS 1 bag);
+    SlamInputError naming it otherwise."""
     root = Path(path)
     if not root.exists():
         raise SlamInputError(f"{root}: dataset folder not found")
-    if not root.is_dir():
-        raise SlamInputError(f"{root}: not a folder")
     probed = [d for d in DATASETS.values() if d.looks_like is not None]
+    if not root.is_dir():
+        # only a file format's probe (a ROS 1 bag's) can accept a file; the folder layouts' may not expect one
+        for d in probed:
+            if d.container and d.looks_like(root):
+                return d.name
+        raise SlamInputError(f"{root}: not a folder (nor a ROS 1 bag, a .bag file)")
     for d in probed:
         if d.looks_like(root):
             return d.name
@@ -35,9 +40,9 @@ def load_dataset(path, kind: str = "auto", **options):
     """Open a dataset folder.
 
     Args:
-        path: the sequence folder.
+        path: the sequence folder (or ROS 1 bag file).
         kind: ``"auto"`` (detect) or a name in :data:`~slam.data.registry.DATASETS`: ``"replica"``,
-            ``"synthetic"`` (a Replica folder), ``"tum"``, ``"scannet"``, ``"7scenes"``.
+            ``"synthetic"`` (a Replica folder), ``"tum"``, ``"scannet"``, ``"7scenes"``, ``"bag"``.
         **options: passed to the loader (crop_size, crop_edge, stride, max_frames, ...).
     """
     if kind == "auto":

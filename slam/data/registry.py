@@ -4,7 +4,7 @@ detection, :func:`~slam.data.load_dataset`, a config's ``data.kind``, :data:`REF
 
 Adding a dataset: a module ``slam/data/<name>.py`` holding its loader (an :class:`~slam.data.base.RGBDDataset`
 subclass) and a ``looks_like(root) -> bool`` probe, plus one line in :data:`DATASETS` below. Detection tries the
-probes in the order of :data:`DATASETS`; the first that accepts a folder names its layout.
+probes in the order of :data:`DATASETS`; the first that accepts a folder (or file: a ROS 1 bag) names its layout.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from slam.data import replica, scannet, sevenscenes, tum
+from slam.data import bag, replica, scannet, sevenscenes, tum
 from slam.data.base import COMMON_OPTIONS
 from slam.errors import SlamInputError
 
-__all__ = ["DATASETS", "REFERENCE_OPTIONS", "DatasetKind", "dataset_kind"]
+__all__ = ["DATASETS", "REFERENCE_OPTIONS", "DatasetKind", "container_kind", "dataset_kind"]
 
 
 @dataclass(frozen=True)
@@ -27,8 +27,8 @@ class DatasetKind:
 
     Attributes:
         name: its name in a config's ``data.kind``, ``load_dataset(kind=...)`` and ``lrslam download``.
-        loader: the loader class: ``loader(path, **options)`` opens a folder.
-        looks_like: ``looks_like(root) -> bool`` for an existing folder. None for a dataset named but never
+        loader: the loader class: ``loader(path, **options)`` opens a folder (a file for a ROS 1 bag).
+        looks_like: ``looks_like(root) -> bool`` for an existing folder or file. None for a dataset named but never
             detected, whose folders have the layout of ``same_layout_as`` (the synthetic room: a Replica folder).
         layout: what a folder of it holds, as the error for an unrecognised folder lists it.
         reference_options: the loader options that reproduce the reference (ESLAM) configs' image processing;
@@ -38,6 +38,8 @@ class DatasetKind:
         same_layout_as: see ``looks_like``.
         hint: ``hint(root) -> str | None``: the message for a folder close to this layout but not of it (a
             7-Scenes scene folder instead of one of its sequences); asked only when no probe accepts a folder.
+        container: a file format that holds a recording of any camera (ROS bags), not one dataset's layout: a
+            preset of any ``data.kind`` reads it as ``data.kind: auto`` would, with the preset's options.
     """
 
     name: str
@@ -48,6 +50,7 @@ class DatasetKind:
     download: str | None = None
     same_layout_as: str | None = None
     hint: Callable[[Path], str | None] | None = None
+    container: bool = False
 
     @property
     def options(self) -> tuple[str, ...]:
@@ -75,11 +78,21 @@ DATASETS: dict[str, DatasetKind] = {d.name: d for d in (
     DatasetKind("7scenes", sevenscenes.SevenScenesDataset, sevenscenes.looks_like,
                 "7-Scenes frame-NNNNNN.color.png/.depth.png/.pose.txt", download="fetch",
                 hint=sevenscenes.scene_folder_hint),
+    DatasetKind("bag", bag.BagDataset, bag.looks_like, "a ROS 1 .bag file or a ROS 2 bag folder (metadata.yaml, "
+                ".db3/.mcap)", container=True),
 )}
 
 #: loader options that reproduce the reference (ESLAM) configs' image processing, per dataset that has them
 REFERENCE_OPTIONS = {name: dict(d.reference_options) for name, d in DATASETS.items()
                      if d.reference_options is not None}
+
+
+def container_kind(path) -> str | None:
+    """The name of the container format (:attr:`DatasetKind.container`) ``path`` holds, None for anything else."""
+    p = Path(path).expanduser()
+    if not p.exists():
+        return None
+    return next((d.name for d in DATASETS.values() if d.container and d.looks_like(p)), None)
 
 
 def dataset_kind(name: str) -> DatasetKind:
