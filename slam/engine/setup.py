@@ -58,15 +58,17 @@ def load_data(cfg: Config):
         SlamInputError: a ``data.options`` key the dataset kind does not take (checked before any folder is read
             or sequence generated), a missing or foreign folder, or data the loader cannot read."""
     from slam.data import detect_layout, load_dataset
-    from slam.data.registry import dataset_kind
+    from slam.data.registry import container_kind, dataset_kind
 
     path = cfg.data.path
+    # a ROS bag holds a recording of any camera: a preset of any kind reads it as data.kind auto would
+    data_kind = "auto" if path is not None and container_kind(path) else cfg.data.kind
     # the layout a folder of the named dataset is detected as (the synthetic room's is Replica's)
-    kind = "auto" if cfg.data.kind == "auto" else dataset_kind(cfg.data.kind).detected_as
+    kind = "auto" if data_kind == "auto" else dataset_kind(data_kind).detected_as
     options = dict(cfg.data.options)
-    if cfg.data.kind != "auto":
-        check_data_options(cfg.data.kind, options, path)
-    synthetic = cfg.data.kind == "synthetic"
+    if data_kind != "auto":
+        check_data_options(data_kind, options, path)
+    synthetic = data_kind == "synthetic"
     scene = options.pop("scene", "room") if synthetic else "room"
     generator = {k: options.pop(k) for k in list(options) if k in GENERATOR_OPTIONS} if synthetic else {}
     if path is None:
@@ -80,7 +82,7 @@ def load_data(cfg: Config):
     if kind != "auto" and found != kind:
         raise SlamInputError(f"preset '{cfg.name}' expects {kind} data but {p} looks like {found} data "
                              f"(pick a {found} preset or data.kind=auto)")
-    if cfg.data.kind == "auto":
+    if data_kind == "auto":
         check_data_options(found, options, path)
     try:
         ds = load_dataset(p, kind=found, **options)
