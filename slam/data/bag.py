@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -145,8 +146,9 @@ class _Bag:
 
     def message(self, topic: str, record_ns: int, ordinal: int):
         """The ``ordinal``-th message of ``topic`` recorded at ``record_ns``, deserialised."""
-        with self.lock:
-            for n, (_, raw) in enumerate(self.messages(topic, record_ns, record_ns + 1)):
+        # closed at once, not when collected: the sqlite3 storage holds a cursor open until then
+        with self.lock, closing(self.messages(topic, record_ns, record_ns + 1)) as found:
+            for n, (_, raw) in enumerate(found):
                 if n == ordinal:
                     return self.decode(raw, self.topics[topic][0], topic)
         raise SlamInputError(f"{self.path}: topic {topic}: the message recorded at {record_ns} ns is gone")
@@ -157,7 +159,6 @@ class _Stream:
     """One topic's messages as indexed at open: header stamps ``[N]`` (int ns, record order) and where each is
     (record time ns, position among the topic's messages of that record time)."""
 
-    topic: str
     stamps: np.ndarray
     records: np.ndarray
     ordinals: np.ndarray
@@ -185,7 +186,7 @@ def _index(bag: _Bag, topic: str) -> _Stream:
     if not any(stamps):
         log.warning("%s: topic %s has no header stamps; pairing by record time", bag.path, topic)
         stamps = list(records)
-    return _Stream(topic, np.array(stamps, dtype=np.int64), np.array(records, dtype=np.int64),
+    return _Stream(np.array(stamps, dtype=np.int64), np.array(records, dtype=np.int64),
                    np.array(ordinals, dtype=np.int64))
 
 

@@ -53,7 +53,8 @@ class BagWriter:
     def write(self, topic: str, msg, ns: int, record_ns: int | None = None):
         if topic not in self.conns:
             self.conns[topic] = self.w.add_connection(topic, msg.__msgtype__, typestore=self.ts)
-        data = self.ts.serialize_cdr(msg, msg.__msgtype__) if self.ros2 else self.ts.serialize_ros1(msg, msg.__msgtype__)
+        serialize = self.ts.serialize_cdr if self.ros2 else self.ts.serialize_ros1
+        data = serialize(msg, msg.__msgtype__)
         self.w.write(self.conns[topic], ns if record_ns is None else record_ns, data)
 
     def image(self, topic: str, ns: int, array: np.ndarray, encoding: str, **kw):
@@ -67,8 +68,8 @@ class BagWriter:
         import imageio.v3 as iio
 
         data = np.frombuffer(iio.imwrite("<bytes>", rgb, extension=f".{fmt}"), dtype=np.uint8)
-        msg = self.ts.types["sensor_msgs/msg/CompressedImage"](header=self._header(ns), format=f"rgb8; {fmt} compressed bgr8",
-                                                               data=data)
+        msg = self.ts.types["sensor_msgs/msg/CompressedImage"](header=self._header(ns), data=data,
+                                                               format=f"rgb8; {fmt} compressed bgr8")
         self.write(topic, msg, ns)
 
     def camera_info(self, topic: str, ns: int, intr, distortion=DISTORTION, model="plumb_bob"):
@@ -297,6 +298,33 @@ def test_bad_bags_give_one_line_naming_the_file_and_topic(bags, name, message):
     with pytest.raises(SlamInputError, match=message) as err:
         BagDataset(bags[name])
     assert "\n" not in str(err.value)
+
+
+def test_image_rows_padding_and_byte_order_are_honoured():
+    from types import SimpleNamespace
+
+    from slam.data.bag import DEPTH_ENCODINGS, _image
+
+    depth = np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000 + 7
+    padded = np.zeros((3, 12), dtype=np.uint8)  # rows of 8 bytes of pixels, 4 of padding
+    padded[:, :8] = depth.astype(">u2").view(np.uint8).reshape(3, 8)
+    msg = SimpleNamespace(encoding="16UC1", is_bigendian=1, height=3, width=4, step=12, data=padded.reshape(-1))
+    out = _image(msg, "x.bag: topic /d", DEPTH_ENCODINGS)
+    assert out.dtype == np.uint16 and np.array_equal(out[..., 0], depth)
+    short = SimpleNamespace(encoding="32FC1", is_bigendian=0, height=3, width=4, step=16, data=np.zeros(40, np.uint8))
+    with pytest.raises(SlamInputError, match=r"x.bag: topic /d: a 3x4 32FC1 image holds 40 bytes with rows of 16"):
+        _image(short, "x.bag: topic /d", DEPTH_ENCODINGS)
+
+
+def test_any_preset_reads_a_bag_with_the_bag_loaders_options(bags, capsys):
+    from slam.cli import main
+
+    assert main(["run", "--config", "tum", "--data", str(bags["ros1"]), "--out", str(bags["root"] / "never"),
+                 "data.options.camera=fr1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "config key 'data.options.camera' is not an option of bag data" in err[0]
+    with pytest.raises(SlamInputError, match=r"groundtruth.txt: not a folder \(nor a ROS 1 bag, a .bag file\)"):
+        detect_layout(bags["gt"])
 
 
 def test_camera_options_override_the_camera_info(bags):
