@@ -37,7 +37,8 @@ def register(subparsers) -> None:
         ),
     )
     p.add_argument("--config", default=None, help="preset name or YAML file (default: synthetic)")
-    p.add_argument("--data", default=None, help="dataset folder (default: the preset's; synthetic: bundled)")
+    p.add_argument("--data", default=None, help="dataset folder, ROS 1 .bag file or ROS 2 bag folder (default: the "
+                                                "preset's; synthetic: bundled)")
     p.add_argument("--out", default=None, help="output folder (default: runs/<preset>-<representation>)")
     p.add_argument("--device", default=None, choices=["cpu", "cuda"], help="torch device (default: the config's; with --resume, the kind the run computed on)")
     p.add_argument("--resume", metavar="OUT_DIR", default=None,

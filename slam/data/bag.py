@@ -360,6 +360,9 @@ class BagDataset(RGBDDataset):
                                  ".db3/.mcap files)")
         self.root = root
         self.name = root.stem if root.is_file() else root.name
+        # what a resume's fingerprint sizes up (slam.engine.setup): the bag's files, as a folder's are its images
+        self.source_files = [root] if root.is_file() else sorted(
+            p for p in root.iterdir() if p.suffix in (".db3", ".mcap"))
         self._bag = bag = _Bag(root)
         self.color_topic, self.depth_topic, self.camera_info_topic = _topics(bag, color_topic, depth_topic,
                                                                              camera_info_topic)

@@ -77,7 +77,7 @@ def load_data(cfg: Config):
         path = str(_synthetic_sequence(scene, cfg.data.max_frames, cfg.data.stride, generator))
     p = Path(path).expanduser()
     if not p.exists():
-        raise SlamInputError(f"data folder not found: {p}")
+        raise SlamInputError(f"data not found: {p} (a dataset folder, a ROS 1 .bag file or a ROS 2 bag folder)")
     found = detect_layout(p)
     if kind != "auto" and found != kind:
         raise SlamInputError(f"preset '{cfg.name}' expects {kind} data but {p} looks like {found} data "
@@ -222,10 +222,10 @@ FINGERPRINT_FORM = 2
 
 
 def _frame_files(ds, indices: list[int]) -> list[Path]:
-    """The colour and depth files of the selected frames, colour first, in frame order (none for a dataset
-    that does not list its files)."""
+    """The colour and depth files of the selected frames, colour first, in frame order, then the files a
+    container dataset reads its frames from (``source_files``: a ROS bag's)."""
     return [Path(paths[i]) for paths in (getattr(ds, "color_paths", None), getattr(ds, "depth_paths", None)) if paths
-            for i in indices]
+            for i in indices] + [Path(p) for p in getattr(ds, "source_files", ())]
 
 
 def _digest(items) -> str:

@@ -397,3 +397,23 @@ def test_lrslam_run_on_a_bag_gives_the_trajectory_of_the_folder_it_was_made_from
         assert rc == 0, capsys.readouterr().err
         runs[name] = hashlib.sha256((out / "trajectory.txt").read_bytes()).hexdigest()
     assert runs["bag"] == runs["folder"]
+
+
+def test_a_resume_fingerprint_sees_a_bag_replaced_by_another(bags, tmp_path):
+    """A bag has no image file per frame: the resume check sizes up its files instead (a ROS 1 file, the ROS 2
+    folder's storage files), so another recording under the same name is refused."""
+    import shutil
+
+    from slam.data.bag import BagDataset
+    from slam.engine.setup import data_fingerprint, fingerprint_mismatch
+
+    bag = tmp_path / "run.bag"
+    shutil.copy(bags["ros1"], bag)
+    indices = list(range(N))
+    stored = data_fingerprint(BagDataset(bag), indices)
+    assert fingerprint_mismatch(stored, BagDataset(bag), indices) is None
+    assert BagDataset(bags["sqlite3"]).source_files and all(p.suffix == ".db3"
+                                                            for p in BagDataset(bags["sqlite3"]).source_files)
+    bag.unlink()
+    write_rgbd_bag(bag, bags["src"], color="png")  # the same frames and stamps, recorded otherwise
+    assert "sizes" in fingerprint_mismatch(stored, BagDataset(bag), indices)
