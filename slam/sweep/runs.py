@@ -139,11 +139,17 @@ def _check_same_config(spec: RunSpec, planned: dict) -> None:
     """A finished folder is only reused for the same config (threads aside), else the numbers would lie."""
     import yaml
 
+    from slam.config import config_from_dict
+
     path = Path(spec.run_dir) / "config.yaml"
     try:
         saved = yaml.safe_load(path.read_text()) or {}
     except (OSError, yaml.YAMLError):
         return
+    try:  # a folder of an older version: its keys moved, the keys added since at the defaults it computed with
+        saved = config_from_dict(saved, upgrade=True).to_dict()
+    except SlamInputError:
+        pass  # compared as written: the difference names the key
     a, b = flatten(saved), flatten(planned)
     diff = differing_keys(saved, planned, ignore=("threads",))
     if diff:

@@ -332,3 +332,23 @@ def test_tiny_sweep_on_local_ray(tiny_seq, tmp_path, capsys):
         print(f"first sweep {first:.1f} s")
     finally:
         ray.shutdown()
+
+
+def test_a_finished_run_of_an_older_version_is_reused_when_only_keys_added_since_are_missing(tmp_path):
+    """A run folder written before a key existed (here ``data.realtime``) computed with that key's default: a sweep
+    that plans the same config reuses it instead of calling it another config; a real difference is still named."""
+    import yaml
+
+    from slam.config import load_config
+    from slam.sweep.runs import _check_same_config
+
+    spec = RunSpec("synthetic", None, "synthetic", "lrslam", 0, ("tracking.iters=2",), str(tmp_path))
+    planned = load_config("synthetic", list(spec.config_overrides())).to_dict()
+    old = yaml.safe_load(yaml.safe_dump(planned))
+    del old["data"]["realtime"]
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(old))
+    _check_same_config(spec, planned)
+    old["tracking"]["iters"] = 3
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(old))
+    with pytest.raises(SlamInputError, match="tracking.iters: 3 there, 2 now"):
+        _check_same_config(spec, planned)
