@@ -303,17 +303,17 @@ def test_bad_bags_give_one_line_naming_the_file_and_topic(bags, name, message):
 def test_image_rows_padding_and_byte_order_are_honoured():
     from types import SimpleNamespace
 
-    from slam.data.bag import DEPTH_ENCODINGS, _image
+    from slam.data.bag_messages import DEPTH_ENCODINGS, decode_image
 
     depth = np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000 + 7
     padded = np.zeros((3, 12), dtype=np.uint8)  # rows of 8 bytes of pixels, 4 of padding
     padded[:, :8] = depth.astype(">u2").view(np.uint8).reshape(3, 8)
     msg = SimpleNamespace(encoding="16UC1", is_bigendian=1, height=3, width=4, step=12, data=padded.reshape(-1))
-    out = _image(msg, "x.bag: topic /d", DEPTH_ENCODINGS)
+    out = decode_image(msg, "x.bag: topic /d", DEPTH_ENCODINGS)
     assert out.dtype == np.uint16 and np.array_equal(out[..., 0], depth)
     short = SimpleNamespace(encoding="32FC1", is_bigendian=0, height=3, width=4, step=16, data=np.zeros(40, np.uint8))
     with pytest.raises(SlamInputError, match=r"x.bag: topic /d: a 3x4 32FC1 image holds 40 bytes with rows of 16"):
-        _image(short, "x.bag: topic /d", DEPTH_ENCODINGS)
+        decode_image(short, "x.bag: topic /d", DEPTH_ENCODINGS)
 
 
 def test_any_preset_reads_a_bag_with_the_bag_loaders_options(bags, capsys):
