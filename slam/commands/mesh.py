@@ -67,6 +67,37 @@ def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
     return cfg, scene, extra
 
 
+def _check_resolution(resolution: float | None) -> None:
+    """SlamInputError for a ``--resolution`` outside the run's own ``meshing.resolution`` range: 0 is not "the
+    run's" (only leaving the flag out is)."""
+    from slam.config.declare import METRES, Range
+
+    allowed = Range(**METRES)
+    if resolution is not None and not allowed.ok(resolution):
+        raise SlamInputError(f"--resolution = {resolution:g} is out of range: must be {allowed} (metres); "
+                             "leave it out for the run's meshing.resolution")
+
+
+def _culled(mesh, cfg: Config, ds, extra: dict, intr):
+    """``mesh`` culled against the view frusta of the run's frames (the checkpoint's ``extra``: their poses and
+    indices), with the depth test where the run's data (``ds``, None when it cannot be read) still reads and the
+    run's config asks for it."""
+    from slam.engine.frames import readable_depth
+    from slam.eval import cull_mesh
+
+    depths = None
+    if ds is not None and cfg.meshing.cull_depth_test:
+        depths = [readable_depth(ds, i) for i in extra["frame_indices"]]
+        bad = sum(d is None for d in depths)
+        if bad:
+            print(f"note: {bad} frame(s) of the run cannot be read: culled by their view frusta only",
+                  file=sys.stderr)
+    elif cfg.meshing.cull_depth_test:
+        print("note: the run's data cannot be read: culling by the view frusta only (no depth test)",
+              file=sys.stderr)
+    return cull_mesh(mesh, extra["poses"].numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
+
+
 def main(args) -> int:
     import numpy as np
     import torch
@@ -75,19 +106,12 @@ def main(args) -> int:
     from slam.engine.frames import readable_depth
     from slam.model.mesher import Hull, extract_mesh, hull_points
 
-    from slam.config.declare import METRES, Range
-
-    # the run's own meshing.resolution range: 0 is not "the run's" (only leaving the flag out is)
-    allowed = Range(**METRES)
-    if args.resolution is not None and not allowed.ok(args.resolution):
-        raise SlamInputError(f"--resolution = {args.resolution:g} is out of range: must be {allowed} (metres); "
-                             "leave it out for the run's meshing.resolution")
+    _check_resolution(args.resolution)
     path = Path(args.checkpoint)
     if path.is_dir():
         path = path / "checkpoint.pt"
     cfg, scene, extra = load_run_checkpoint(path)
     res = cfg.meshing.resolution if args.resolution is None else args.resolution
-    poses = extra["poses"]
     from slam.data.types import Intrinsics
 
     intr = Intrinsics(**extra["intrinsics"])
@@ -114,19 +138,7 @@ def main(args) -> int:
     hull = Hull(pts, cfg.meshing.hull_scale) if len(pts) >= 4 else None
     mesh = extract_mesh(scene, extra["marching_cubes_bound"], res, cfg.meshing.batch, hull)
     if not args.no_cull and len(mesh.faces):
-        from slam.eval import cull_mesh
-
-        depths = None
-        if ds is not None and cfg.meshing.cull_depth_test:
-            depths = [readable_depth(ds, i) for i in extra["frame_indices"]]
-            bad = sum(d is None for d in depths)
-            if bad:
-                print(f"note: {bad} frame(s) of the run cannot be read: culled by their view frusta only",
-                      file=sys.stderr)
-        elif cfg.meshing.cull_depth_test:
-            print("note: the run's data cannot be read: culling by the view frusta only (no depth test)",
-                  file=sys.stderr)
-        mesh = cull_mesh(mesh, poses.numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
+        mesh = _culled(mesh, cfg, ds, extra, intr)
     out = Path(args.out) if args.out else path.parent / f"mesh_{res:g}.ply"
     with replacing(out, "mesh") as tmp:
         mesh.export(tmp)
