@@ -78,8 +78,8 @@ DATASETS: dict[str, DatasetKind] = {d.name: d for d in (
     DatasetKind("7scenes", sevenscenes.SevenScenesDataset, sevenscenes.looks_like,
                 "7-Scenes frame-NNNNNN.color.png/.depth.png/.pose.txt", download="fetch",
                 hint=sevenscenes.scene_folder_hint),
-    DatasetKind("bag", bag.BagDataset, bag.looks_like, "a ROS 1 .bag file or a ROS 2 bag folder (metadata.yaml, "
-                ".db3/.mcap)", container=True),
+    DatasetKind("bag", bag.BagDataset, bag.looks_like, "a ROS bag (a ROS 1 .bag file, or a ROS 2 folder of "
+                "metadata.yaml and .db3/.mcap files)", container=True),
 )}
 
 #: loader options that reproduce the reference (ESLAM) configs' image processing, per dataset that has them

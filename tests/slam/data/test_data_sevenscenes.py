@@ -137,7 +137,9 @@ def test_layout_detection(tmp_path):
     with pytest.raises(SlamInputError, match=r"fire: a 7-Scenes scene with 2 sequences; pass one sequence folder, "
                                              r"e.g. .*fire/seq-01"):
         detect_layout(scene)
-    with pytest.raises(SlamInputError, match=r"or 7-Scenes frame-NNNNNN.color.png"):
+    with pytest.raises(SlamInputError, match=r", 7-Scenes frame-NNNNNN\.color\.png/\.depth\.png/\.pose\.txt, "
+                                             r"or a ROS bag \(a ROS 1 \.bag file, or a ROS 2 folder of "
+                                             r"metadata\.yaml and \.db3/\.mcap files\)\)$"):
         detect_layout(tmp_path)
 
 
