@@ -36,79 +36,15 @@ import pickle
 import queue
 import signal
 import threading
-import time
-import traceback
 
 import torch
 
+from slam.engine.map_child import serve
 from slam.engine.mapper import MapMoments
 from slam.errors import SlamRunError
 from slam.engine.wire import pack_state, unpack_state
 
 __all__ = ["MapProcess"]
-
-
-def _serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
-    """The child: rehearses its calls (``rehearsal``: ``(aabb, color, depth, pose)``, :mod:`slam.engine.rehearsal`),
-    builds the replica on ``init``, then runs ``map`` / ``grow`` messages in order until ``close``."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    from slam.engine.mapper import keep_keyframe, map_frame
-    from slam.engine.runtime import keep_freed_memory, set_threads
-    from slam.model.growth import apply_growth
-    from slam.model.scene import SceneModel
-
-    set_threads(cfg.threads)
-    if cfg.keep_freed_memory:
-        keep_freed_memory()
-    if rehearsal is not None:
-        from slam.engine.rehearsal import rehearse_mapping
-
-        aabb, *frame = rehearsal
-        rehearse_mapping(SceneModel(cfg, aabb).to(device), cfg, intr, *(t.to(device) for t in frame))
-    conn.send_bytes(pickle.dumps(("hello", None)))  # imported (and rehearsed): the loop need not wait for that
-    scene = keyframes = None
-    moments = MapMoments()
-    gen = torch.Generator()
-    while True:
-        try:
-            kind, body = pickle.loads(conn.recv_bytes())
-        except EOFError:  # the parent is gone
-            return
-        if kind == "close":
-            return
-        try:
-            if kind == "init":
-                scene, keyframes = _replica(cfg, device, body)
-                gen.set_state(body["gen"])
-                moments = MapMoments(body["moments"])
-                reply = ("ready", None)
-            elif kind == "grow":
-                apply_growth(scene, body)
-                moments.reset()
-                reply = ("grown", None)
-            elif kind == "moments":  # asked for by a checkpoint, after the calls sent before it
-                state = moments.cpu_state()
-                reply = ("moments", None if state is None else {n: pack_state(st) for n, st in state.items()})
-            else:  # "map"
-                k, color, depth, pose, first, keyframe, iters = body
-                color, depth = torch.from_numpy(color), torch.from_numpy(depth)
-                t0 = time.perf_counter()
-                res = map_frame(scene, k, color.to(device), depth.to(device), pose.to(device), intr, keyframes, cfg,
-                                gen, first=first, moments=moments, iters=iters)
-                keep_keyframe(keyframes, k, color, depth, pose, res, keyframe)
-                seconds = time.perf_counter() - t0
-                res.pose = res.pose.cpu()
-                reply = ("done", {"result": res, "seconds": seconds, "snapshot": pack_state(scene.state_dict()),
-                                  "gen": gen.get_state(),
-                                  "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7),
-                                  "indices": [kf.index for kf in keyframes.frames]})
-        except Exception:  # noqa: BLE001 - the parent re-raises it with this traceback
-            reply = ("error", traceback.format_exc())
-        try:
-            conn.send_bytes(pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL))
-        except OSError:  # the parent is gone (killed mid-call): nobody is left to answer
-            return
 
 
 def _exit_reason(code: int | None) -> str:
@@ -120,22 +56,6 @@ def _exit_reason(code: int | None) -> str:
         why = ": killed, perhaps by the system when memory ran out" if -code == signal.SIGKILL else ""
         return f"{name}{why}"
     return f"exit code {code}"
-
-
-def _replica(cfg, device: str, body: dict):
-    """``(scene, keyframes)``: the child's replica of the parent's map and keyframe store from an ``init`` message."""
-    from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.model.growth import fit_to_state
-    from slam.model.scene import SceneModel
-
-    scene = SceneModel(cfg, body["aabb"]).to(device)
-    with torch.no_grad():
-        fit_to_state(scene, body["scene"])
-        scene.load_state_dict(body["scene"])
-    keyframes = KeyframeStore.for_mapping(cfg.mapping)
-    for k, color, depth, pose in body["keyframes"]:
-        keyframes.add(Keyframe(k, color, depth, pose), drop=False)  # the parent's are the ones kept
-    return scene, keyframes
 
 
 class _Call:
@@ -189,7 +109,7 @@ class MapProcess:
             return
         ctx = multiprocessing.get_context("spawn")  # a fork would copy the parent's threads' locks mid-use
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child, self.cfg, self.intr, self.device, rehearsal),
+        self._proc = ctx.Process(target=serve, args=(child, self.cfg, self.intr, self.device, rehearsal),
                                  name="lrslam-map", daemon=True)
         self._proc.start()
         child.close()
