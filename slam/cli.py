@@ -16,6 +16,7 @@ from slam.errors import SlamInputError, SlamRunError
 # module path -> it defines register(subparsers); the order is the order in --help
 _COMMAND_MODULES = (
     "slam.commands.run",
+    "slam.commands.live",
     "slam.commands.download",
     "slam.commands.params",
     "slam.commands.mesh",

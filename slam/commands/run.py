@@ -103,7 +103,7 @@ def main(args) -> int:
         out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"
     if args.stop_after is not None and args.stop_after < 1:
         raise SlamInputError(f"--stop-after must be at least 1 frame, got {args.stop_after}")
-    observers = _viewer(args)
+    observers = viewer_observers(args)
     t0 = time.perf_counter()
     try:
         metrics = run_to_folder(cfg, out, progress=not args.quiet, mesh=not args.no_mesh,
@@ -126,7 +126,7 @@ def main(args) -> int:
     return 0
 
 
-def _viewer(args) -> list:
+def viewer_observers(args) -> list:
     """The Rerun observer the flags ask for (checked before the run starts), or none."""
     if args.rerun is None and args.rerun_connect is None:
         return []

@@ -7,6 +7,9 @@ does not wait. When the loop is faster than the camera it waits for the next fra
 then depends on how fast the machine is, so a real-time run repeats only on the same machine under the same load;
 the frames it dropped are kept in its checkpoint, so ``--resume`` goes on from the same ones (the clock restarts at
 the resumed frame). The latency of a frame is from its arrival to its pose; reading its files is part of it.
+
+A live camera (:mod:`slam.data.live`) is taken the same way, its frames added to the run as they arrive
+(:func:`take_live`).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["Replay", "arrival_times", "latency_summary"]
+__all__ = ["Replay", "arrival_times", "latency_summary", "pass_over", "take_live", "take_replayed"]
 
 
 def arrival_times(indices: Sequence[int], timestamps: Sequence[float] | None) -> np.ndarray:
@@ -70,3 +73,48 @@ def latency_summary(latency: Sequence[float], dropped: int) -> dict:
                                      "latency_p95_s": round(float(np.percentile(lat, 95)), 4),
                                      "latency_max_s": round(float(lat.max()), 4)}
     return {"frames_processed": int(lat.size), "frames_dropped": int(dropped), **stats}
+
+
+def pass_over(system, positions: list[int]) -> None:
+    """Frames at these positions of ``system`` (a :class:`slam.engine.system.SLAM`; not processed yet) arrived
+    while the loop was busy and are never taken: they leave its frames to process (``indices``, the ground truth,
+    the timestamps, the frame reader's list), and ``state.dropped`` lists them."""
+    if not positions:
+        return
+    gone = set(positions)
+    keep = [k for k in range(len(system.indices)) if k not in gone]
+    system.state.dropped.extend(int(system.indices[k]) for k in sorted(gone))
+    system.indices[:] = [system.indices[k] for k in keep]
+    system.frames.indices[:] = system.indices
+    if system.gt is not None:
+        system.gt = system.gt[keep]
+    if system.timestamps is not None:
+        system.timestamps = system.timestamps[keep]
+
+
+def take_replayed(system, k: int) -> float:
+    """A replay (``system.replay``): wait for the frame at position ``k`` to arrive and pass over the frames that
+    arrived before the newest one that has, which becomes frame ``k``; returns its arrival time."""
+    p = k + len(system.state.dropped)  # its position in the selection (only frames before it were passed over)
+    q = system.replay.take(p)
+    pass_over(system, list(range(k, k + q - p)))
+    return system.replay.arrival(q)
+
+
+def take_live(system, k: int) -> float | None:
+    """A live camera (``system.ds``, :class:`slam.data.live.LiveFeed`): wait for a frame newer than those known
+    unless one is waiting, add the new ones to the frames to process and pass over all but the newest, which
+    becomes frame ``k``; returns its arrival time (``time.perf_counter``), or None once the stream has ended with
+    nothing left to take."""
+    ds = system.ds
+    n = ds.wait_beyond(len(system.selection)) if k >= len(system.indices) else len(ds)
+    new = list(range(len(system.selection), n))
+    if new:
+        system.selection += new
+        system.indices += new
+        system.frames.indices += new
+        system.timestamps = np.concatenate((system.timestamps, [float(ds.timestamps[i]) for i in new]))
+    if k >= len(system.indices):
+        return None
+    pass_over(system, list(range(k, len(system.indices) - 1)))
+    return ds.arrived[system.indices[k]]

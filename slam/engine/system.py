@@ -23,7 +23,6 @@ import numpy as np
 import torch
 
 from slam.config import Config
-from slam.errors import SlamInputError
 from slam.core.pose import matrix_to_pose, pose_to_matrix
 from slam.engine.frames import FrameSource, LoadedFrame, first_readable, readable_depth
 from slam.engine.growth import SceneGrowth, grow_box
@@ -31,18 +30,16 @@ from slam.engine.keyframes import KeyframeStore
 from slam.engine.map_worker import MapJob, MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
-from slam.engine.realtime import Replay, arrival_times
+from slam.engine.realtime import Replay, arrival_times, take_live, take_replayed
 from slam.engine.rehearsal import preload
-from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import call_iters, is_keyframe
-from slam.engine.setup import (check_edges, data_fingerprint, fingerprint_mismatch, frame_indices, initial_pose,
-                               scene_bound)
+from slam.engine.setup import check_edges, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
 from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
 from slam.engine.tracking_guard import TrackingGuard
+from slam.engine.system_state import load_system_state, system_state
 from slam.engine.view import KeyframeSnapshot, RunView
-from slam.model.growth import fit_to_state
 from slam.model.scene import SceneModel, scene_aabb, scene_size
 
 log = logging.getLogger("slam")
@@ -85,12 +82,14 @@ class SLAM:
         self.scene = SceneModel(cfg, self.aabb).to(self.device)
         self.size = scene_size(self.scene)  # (parameters, field bytes), after each growth too
         self.keyframes = KeyframeStore.for_mapping(cfg.mapping)
-        # a real-time replay reads a frame once it is taken: the frames read ahead might be passed over
-        realtime = cfg.data.realtime
+        # a real-time replay or a live camera (a dataset that grows, slam.data.live) reads a frame once it is taken:
+        # the frames read ahead might be passed over
+        self.live = bool(getattr(dataset, "live", False))
+        realtime = cfg.data.realtime or self.live
         self.frames = FrameSource(dataset, self.indices, (self.intr.height, self.intr.width), self.device,
                                   ahead=0 if realtime else cfg.data.prefetch,
                                   in_waits=cfg.data.prefetch_in == "waits" and not realtime)
-        self.replay = Replay(arrival_times(self.selection, ts)) if realtime else None
+        self.replay = Replay(arrival_times(self.selection, ts)) if realtime and not self.live else None
         t0 = time.perf_counter()
         frame0 = (first.color.to(self.device), first.depth.to(self.device), matrix_to_pose(self.c2w0))
         self.mapper = None
@@ -129,28 +128,9 @@ class SLAM:
             return (self.indices[k] - self.indices[j]) / 30.0
         return float(self.timestamps[k]) - float(self.timestamps[j])
 
-    def _pass_over(self, positions: list[int]) -> None:
-        """Frames at these positions (not processed yet) arrived while the loop was busy and are never taken
-        (``data.realtime``): they leave the frames to process, and ``state.dropped`` lists them."""
-        if not positions:
-            return
-        gone = set(positions)
-        keep = [k for k in range(len(self.indices)) if k not in gone]
-        self.state.dropped.extend(int(self.indices[k]) for k in sorted(gone))
-        self.indices[:] = [self.indices[k] for k in keep]
-        self.frames.indices[:] = self.indices
-        if self.gt is not None:
-            self.gt = self.gt[keep]
-        if self.timestamps is not None:
-            self.timestamps = self.timestamps[keep]
-
-    def _take(self, k: int) -> float:
-        """Real-time replay: wait for the frame at position ``k`` to arrive, pass over the frames that arrived before
-        the newest one that has, which becomes frame ``k``; returns its arrival time."""
-        p = k + len(self.state.dropped)  # its position in the selection (only frames before it were passed over)
-        q = self.replay.take(p)
-        self._pass_over(list(range(k, k + q - p)))
-        return self.replay.arrival(q)
+    def _n_frames(self) -> int:
+        """Frames in the run as far as the schedule knows: a live stream not ended has at least one more."""
+        return len(self.indices) + (1 if self.live and not self.ds.ended else 0)
 
     def _keyframes_when_idle(self) -> list:
         self.mapper.wait_idle()
@@ -210,7 +190,7 @@ class SLAM:
         self._grow(k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
         first = not st.initialized
-        iters = call_iters(k, st, cfg.mapping, len(self.indices))
+        iters = call_iters(k, st, cfg.mapping, self._n_frames())
         if iters is None:
             return False
         st.last_mapped = k
@@ -259,13 +239,21 @@ class SLAM:
                    desc=f"lrslam [{self.cfg.representation}]", initial=start, total=len(self.indices))
         try:
             k = start
-            while k < len(self.indices):  # not a range: a real-time replay passes over frames as it goes
-                arrived = self._take(k) if self.replay is not None else None
+            while True:  # not a range: a real-time replay passes over frames as it goes, a live camera adds them
+                if self.live:
+                    arrived = take_live(self, k)
+                    if arrived is None:
+                        break
+                elif k >= len(self.indices):
+                    break
+                else:
+                    arrived = take_replayed(self, k) if self.replay is not None else None
                 bar.total = len(self.indices)
                 t0 = time.perf_counter()
                 rec = self.step(k)
                 if arrived is not None:
-                    self.state.latency.append(float(self.replay.now() - arrived))  # a plain float: checkpoints
+                    now = self.replay.now() if self.replay is not None else time.perf_counter()
+                    self.state.latency.append(float(now - arrived))  # a plain float: checkpoints
                 if self.cfg.trim_memory_every and (k + 1) % self.cfg.trim_memory_every == 0:
                     release_freed_memory()  # bounds the heap's fragmentation on long runs (slam.engine.runtime)
                 rec.dt = time.perf_counter() - t0
@@ -276,7 +264,7 @@ class SLAM:
                     obs.on_frame(view, rec)
                 bar.update(1)
                 bar.set_postfix_str(f"frame {self.indices[k]}  ATE {rec.ate_m * 100:.2f} cm  {rec.dt:.2f} s/frame")
-                if k + 1 < len(self.indices) and any(obs.stop_requested() for obs in observers):
+                if (k + 1 < self._n_frames()) and any(obs.stop_requested() for obs in observers):
                     return self.state
                 k += 1
         finally:
@@ -300,53 +288,10 @@ class SLAM:
         return KeyframeSnapshot(tuple(kf.index for kf in frames), poses, tuple(kf.metres() for kf in frames))
 
     def state_dict(self) -> dict:
-        """The loop's state, composed of its parts' (after waiting for a mapping call in progress; pending calls
-        stay pending): the run state, the keyframes, the mapper's queue, the guard, the random streams, the boxes
-        as grown and the data's fingerprint. Plain tensors and numbers (``torch.load(weights_only=True)`` reads it)."""
-        self.mapper.wait_idle()
-        return {"state": self.state.state_dict(), **self.keyframes.state_dict(), **self.mapper.state_dict(),
-                "guard": self.guard.state_dict(), "rng": rng_state(self.gen, self.map_gen),
-                "growth": {**self.growth.state_dict(), "bound": self.bound, "mc_bound": self.mc_bound,
-                           "aabb": self.aabb.clone()}, "fingerprint": data_fingerprint(self.ds, self.selection)}
+        """The loop's state (:func:`slam.engine.system_state.system_state`): plain tensors and numbers."""
+        return system_state(self)
 
     def load_state_dict(self, run: dict, scene: dict) -> None:
-        """Put this freshly built system (same config and data) into a :meth:`state_dict`'s state, with the
-        mapper's map ``scene`` (a scene ``state_dict``).
-
-        Raises:
-            SlamInputError: the data differ from the checkpointed run's, the map does not fit this config, or a
-                keyframe can no longer be read."""
-        why = fingerprint_mismatch(run["fingerprint"], self.ds, self.selection)
-        if why:
-            raise SlamInputError(f"the data differ from the checkpointed run's ({why}): resume with the same data "
-                                 "folder and config")
-        try:
-            with torch.no_grad():
-                fit_to_state(self.scene, scene)  # a grown map: its size first
-                self.scene.load_state_dict(scene)
-            self.mapper.load_state_dict(run)
-        except RuntimeError as exc:  # missing keys or other shapes: not this config's scene
-            first = str(exc).strip().splitlines()[0]
-            raise SlamInputError(f"the checkpoint's scene does not fit this run's config ({first})") from None
-        self.state = RunState.from_state_dict(run["state"])
-        dropped, self.state.dropped = set(self.state.dropped), []  # a real-time run's: the same frames passed over
-        self._pass_over([k for k, i in enumerate(self.indices) if i in dropped])
-        if "last_keyframe" not in run["state"]:  # a checkpoint from before it was kept: the newest keyframe submitted
-            made = [kf["k"] for kf in run["keyframes"]] + [p["k"] for p in run["pending"] if p["keyframe"]]
-            self.state.last_keyframe = max(made, default=-1)
-        self.keyframes.load_state_dict(run, self._readable_images)
-        if self.state.prev_depth_k >= 0:
-            self.state.prev_depth = self.frames.get(self.state.prev_depth_k).depth
-        self.guard.load_state_dict(run["guard"])
-        grown = run.get("growth", {})  # absent in a checkpoint from before the box could grow
-        self.growth.load_state_dict(grown)
-        if "aabb" in grown:
-            self.bound, self.mc_bound, self.aabb = grown["bound"], grown["mc_bound"], grown["aabb"].clone()
-        self.size = scene_size(self.scene)
-        set_rng_state(run["rng"], self.gen, self.map_gen)
-
-    def _readable_images(self, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-        frame = self.frames.get(k)
-        if not frame.ok:
-            raise SlamInputError(f"keyframe {k} can no longer be read: {frame.error}")
-        return frame.color.cpu(), frame.depth.cpu()
+        """Put this freshly built system (same config and data) into a :meth:`state_dict`'s state with the mapper's
+        map ``scene`` (:func:`slam.engine.system_state.load_system_state`, which says what it refuses)."""
+        load_system_state(self, run, scene)
