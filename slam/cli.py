@@ -41,6 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
             "  lrslam download tum fr1_rpy --to data/      # fetch a dataset, print the run command for it\n"
             "  lrslam run                                  # bundled synthetic sequence, CPU\n"
             "  lrslam run --config tum/fr1_rpy-cpu --data ../shared/data/tum_fr1_rpy --out runs/rpy\n"
+            "  lrslam run --config tum/fr1_rpy-cpu-fast --data my.bag --realtime   # a ROS bag at its recorded rate\n"
+            "  lrslam live --out runs/desk                   # a running RealSense; Ctrl-C writes every output\n"
             "  lrslam params --config replica/room0 representation=eslam\n"
             "  lrslam eval --trajectory runs/rpy/trajectory.txt --gt runs/rpy/trajectory_gt.txt\n"
             "  lrslam synth --out data/synth --frames 120\n"
