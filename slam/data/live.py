@@ -77,9 +77,9 @@ class LiveFeed:
                     break
                 t, rgb, depth = got
                 rgb, depth = np.ascontiguousarray(rgb, np.uint8), np.ascontiguousarray(depth, np.uint16)
-                if self.writer is not None:
-                    self.writer.add(float(t), rgb, depth)
                 with self._cond:
+                    if self._ended:  # stopped while the camera was delivering this one: the stream ended before it
+                        break
                     i = len(self.arrived)
                     self._frames[i] = (rgb, depth)
                     self.timestamps.append(float(t))
@@ -87,6 +87,8 @@ class LiveFeed:
                     for old in [j for j in self._frames if j < i - KEEP_UNTAKEN and j not in self._taken]:
                         del self._frames[old]
                     self._cond.notify_all()
+                if self.writer is not None:
+                    self.writer.add(float(t), rgb, depth)
         except Exception as exc:  # noqa: BLE001 - a camera that fails ends the stream; the run keeps what it has
             self.error = f"{type(exc).__name__}: {exc}"
             log.warning("camera: %s; the run ends with the frames received", self.error)
