@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[3]
 FAULTS = Path(__file__).resolve().parent / "faults"
 # the process mapper with the settings that meet it: carried Adam moments (the child holds them), a bounded keyframe
 # store (the child drops, the loop mirrors); every second frame mapped, a checkpoint every second frame
-RUN = [*TINY[1:], "data.max_frames=16", "checkpoint_every=2", "parallel=true", "mapper_process=true",
+RUN = [*TINY[1:], "data.max_frames=24", "checkpoint_every=2", "parallel=true", "mapper_process=true",
        "mapping.every_frame=2", "mapping.keyframe_every=2", "mapping.optimizer_state=persistent",
        "mapping.max_keyframes=3"]
 
@@ -64,43 +64,51 @@ def _resume_matches(out: Path, uninterrupted: str) -> None:
     assert (out / "trajectory.txt").read_text() == uninterrupted  # byte for byte
 
 
-@pytest.mark.slow
-def test_sigterm_to_the_process_group_writes_a_checkpoint_and_resumes_exactly(tiny_seq, tmp_path, uninterrupted):
-    """Slurm's scancel, a systemd stop and ``kill -TERM -PGID`` reach the mapping process too: it must leave the stop
-    to the loop (20b7b9c's child died of it, and the run ended in a traceback, exit 1, with no checkpoint)."""
-    out = tmp_path / "run"
-    proc = _cli("--data", str(tiny_seq), "--out", str(out), *RUN)
-    _wait_for_checkpoint(out, 4, proc)
-    os.killpg(proc.pid, signal.SIGTERM)
-    _, err = proc.communicate(timeout=300)
-    assert proc.returncode == 143, err[-2000:]
-    assert f"lrslam run --resume {out}" in _one_line_error(err)
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["partial"] and "error" not in metrics
-    _resume_matches(out, uninterrupted)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("fault", ["kill", "raise:10", "cut:10"])
-def test_a_mapping_process_that_dies_or_raises_stops_in_one_line_and_resumes_exactly(tiny_seq, tmp_path,
-                                                                                     uninterrupted, fault):
-    out = tmp_path / "run"
-    proc = _cli("--data", str(tiny_seq), "--out", str(out), *RUN, fault="" if fault == "kill" else fault)
-    if fault == "kill":
-        _wait_for_checkpoint(out, 4, proc)
-        os.kill(_mapping_child(proc.pid), signal.SIGKILL)  # as the out-of-memory killer does
-    _, err = proc.communicate(timeout=300)
-    line = _one_line_error(err)
-    assert proc.returncode == 1 and "mapping process" in line and f"lrslam run --resume {out}" in line, err[-2000:]
-    if fault != "raise:10":
-        assert "SIGKILL" in line
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["partial"] and "mapping process" in metrics["error"]
-    if fault == "raise:10":  # the child's traceback is kept for a bug report, off the terminal
-        assert "injected fault in the mapping call of frame 10" in line
-        assert "Traceback" in metrics["error_detail"] and "map_frame" in metrics["error_detail"]
+def _stopped(out: Path, args: list[str], how: str, at: int) -> dict:
+    """Run (``args``: a fresh run's, or ``--resume``) and stop it by ``how`` at frame ``at``: ``term`` (SIGTERM to
+    the process group) or ``kill`` (SIGKILL to the mapping process) once a checkpoint has passed ``at``, ``raise`` or
+    ``cut`` in the mapping call of frame ``at`` (``faults/sitecustomize.py``). Checks the one line and the exit
+    code; returns the metrics."""
     from slam.run.checkpoint import load_run
 
+    before = load_run(out / "checkpoint.pt")["extra"]["run"]["next"] if (out / "checkpoint.pt").exists() else 0
+    proc = _cli(*args, fault=f"{how}:{at}" if how in ("raise", "cut") else "")
+    if how in ("term", "kill"):  # a checkpoint this run wrote: its loop (and mapping process) runs
+        _wait_for_checkpoint(out, max(at, before + 2), proc)
+        if how == "term":
+            os.killpg(proc.pid, signal.SIGTERM)
+        else:
+            os.kill(_mapping_child(proc.pid), signal.SIGKILL)  # as the out-of-memory killer does
+    _, err = proc.communicate(timeout=300)
+    line = _one_line_error(err)
+    assert f"lrslam run --resume {out}" in line, err[-2000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["partial"]
+    if how == "term":
+        assert proc.returncode == 143 and "error" not in metrics, err[-2000:]
+        return metrics
+    assert proc.returncode == 1 and "mapping process" in line and "mapping process" in metrics["error"], err[-2000:]
+    if how == "raise":  # the child's traceback is kept for a bug report, off the terminal
+        assert f"injected fault in the mapping call of frame {at}" in line
+        assert "Traceback" in metrics["error_detail"] and "map_frame" in metrics["error_detail"]
+    else:
+        assert "SIGKILL" in line
     kept = load_run(out / "checkpoint.pt")["extra"]["run"]["next"]
-    assert 4 <= kept <= metrics["frames_done"] < 16  # the last periodic checkpoint, not the failed state
+    assert kept <= metrics["frames_done"] < 24  # the last periodic checkpoint, not the failed state
+    return metrics
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["term", "kill", "raise", "cut"])
+def test_a_mapping_process_stopped_or_failing_twice_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path,
+                                                                                    uninterrupted, how):
+    """At two frames of one run, the first stop in the fresh run and the second in its resume: SIGTERM to the
+    process group (Slurm's scancel, a systemd stop, ``kill -TERM -PGID``: 20b7b9c's child died of it, and the run
+    ended in a traceback, exit 1, with no checkpoint), SIGKILL to the mapping process, an exception inside it, and
+    its death in the middle of sending its map. Each stop says so in one line and keeps a checkpoint; the last
+    resume gives the uninterrupted run's trajectory byte for byte."""
+    out = tmp_path / "run"
+    first, second = (4, 10) if how in ("term", "kill") else (6, 12)
+    _stopped(out, ["--data", str(tiny_seq), "--out", str(out), *RUN], how, first)
+    _stopped(out, ["--resume", str(out)], how, second)
     _resume_matches(out, uninterrupted)
