@@ -9,8 +9,8 @@ depth_scale, 0 = none; None: the stream has ended) and ``close()``. :class:`Real
 ``pyrealsense2`` (the ``realsense`` extra), with depth aligned to colour on the host.
 
 Every frame received can be written as it arrives to a TUM-layout folder (:class:`slam.data.tum_writer.TUMWriter`),
-so a live run can be redone offline with ``lrslam run --data FOLDER``. Frames are kept in memory only while they
-may still be taken (the newest few) or once they were (their depth culls the mesh afterwards).
+so a live run can be redone offline with ``lrslam run --config tum --data FOLDER``. Frames are kept in memory only
+while they may still be taken (the newest few) or once they were (their depth culls the mesh afterwards).
 """
 
 from __future__ import annotations

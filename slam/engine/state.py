@@ -30,7 +30,7 @@ class RunState:
     last_mapped: int = -1  # position of the last frame submitted for mapping (slam.engine.schedule)
     last_keyframe: int = -1  # position of the last frame submitted as a keyframe (slam.engine.schedule)
     dropped: list = field(default_factory=list)  # data.realtime: dataset frames that arrived and were never taken
-    latency: list = field(default_factory=list)  # data.realtime: seconds from each processed frame's arrival to its pose
+    latency: list = field(default_factory=list)  # data.realtime: seconds from a processed frame's arrival to its pose
     tracking: list = field(default_factory=list)  # per tracked frame: loss, iterations, inlier share
     sizes: list = field(default_factory=list)  # per processed frame: [parameters, field bytes] of the scene then
     prev_depth: torch.Tensor | None = field(default=None, repr=False, metadata={"transient": True})

@@ -125,6 +125,6 @@ def test_lrslam_live_runs_a_camera_from_the_command_line(tiny_seq, tmp_path, mon
     assert main(["live", "--camera", "fake", "--config", "synthetic", "--out", str(out), "--no-mesh", "--quiet",
                  *TINY[1:]]) == 0
     said = capsys.readouterr().out
-    assert '"frames_received": 8' in said and f"lrslam run --data {out / 'frames'}" in said
+    assert '"frames_received": 8' in said and f"lrslam run --config tum --data {out / 'frames'}" in said
     assert (out / "frames" / "rgb.txt").exists() and (out / "trajectory.txt").exists()
     assert main(["live", "--camera", "fake", "--out", str(out), "--max-frames", "0"]) == 2
