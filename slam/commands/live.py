@@ -38,9 +38,11 @@ def register(subparsers) -> None:
         epilog="example:  lrslam live --out runs/desk --rerun-connect     (pip install -e \".[realsense,viewer]\")",
     )
     p.add_argument("--camera", default="realsense", choices=sorted(CAMERAS), help="camera (default: realsense)")
-    p.add_argument("--config", default="tum/fr1_rpy-cpu-fast",
-                   help="preset or YAML for the tracker and mapper (default: tum/fr1_rpy-cpu-fast, the fastest on "
-                        "the CPU); its data settings do not apply: the camera gives the images and intrinsics")
+    p.add_argument("--config", default="tum",
+                   help="preset or YAML for the tracker and mapper (default: tum); its data settings do not apply: the "
+                        "camera gives the images and intrinsics")
+    p.add_argument("--profile", default=None,
+                   help="realtime, quality, paper or a YAML file (default: realtime on the CPU, paper on CUDA)")
     p.add_argument("--out", default="runs/live", help="output folder (default: runs/live)")
     p.add_argument("--record", default=None, metavar="DIR",
                    help="where to record the frames received (default: OUT/frames)")
@@ -71,7 +73,7 @@ def main(args) -> int:
     overrides = [*args.overrides, "data.realtime=true"]
     if args.device is not None:
         overrides.append(f"device={args.device}")
-    cfg = load_config(args.config, overrides)
+    cfg = load_config(args.config, overrides, profile=args.profile)
     out = Path(args.out)
     record = None if args.no_record else Path(args.record) if args.record else out / "frames"
     observers = viewer_observers(args)

@@ -13,13 +13,35 @@ from pathlib import Path
 from slam.errors import SlamInputError
 
 
+def _profiles_help() -> str:
+    from slam.config.profiles import PROFILES, describe
+
+    width = max(map(len, PROFILES))
+    return "\n".join(f"  {name:<{width}}  {describe(name)}" for name in PROFILES)
+
+
+def _epilog() -> str:
+    return (
+        "profiles (--profile; the budget, apart from the data; measured in docs/profiles.md):\n"
+        + _profiles_help() + "\n"
+        "presets (--config; the data: camera, crop, a published box): synthetic, synthetic/walk, tum,\n"
+        "         tum/fr1_rpy, tum/fr1_desk, 7scenes, replica, replica/room0, scannet, scannet/scene0000, bag\n"
+        "overrides are dotted key=value pairs, e.g. tracking.iters=20 representation=eslam bound=auto\n"
+        "resume an interrupted run:  lrslam run --resume runs/rpy   (only device, mapper_process,\n"
+        "         preload_kernels, data.max_bad_fraction, data.prefetch, data.prefetch_in, checkpoint_every,\n"
+        "         checkpoint_interval_s and mapping.keyframe_spill_dir may be changed on resume)"
+    )
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "run",
         help="run SLAM on a sequence (default: the bundled synthetic room on the CPU)",
         description=(
             "Run LRSLAM (or ESLAM / an ablation via representation=...) on a sequence. With no arguments it "
-            "tracks and maps the bundled synthetic room on the CPU. Outputs in --out: trajectory.txt, "
+            "tracks and maps the bundled synthetic room on the CPU; --data DIR alone runs any dataset folder or "
+            "bag: its kind is detected, the camera read from it, the box sized from its first frames, at the "
+            "device's default profile (realtime on the CPU, paper on CUDA). Outputs in --out: trajectory.txt, "
             "trajectory_gt.txt, mesh.ply, trajectory.png, config.yaml, checkpoint.pt, metrics.json. "
             "A checkpoint is written every minute (checkpoint_every / checkpoint_interval_s); Ctrl-C or SIGTERM "
             "finish the current frame, write the outputs so far (metrics.json marked partial) and say how to "
@@ -27,16 +49,12 @@ def register(subparsers) -> None:
             "second Ctrl-C stops at once."
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=(
-            "overrides are dotted key=value pairs, e.g. tracking.iters=20 representation=eslam bound=auto\n"
-            "presets: synthetic, replica/room0, scannet/scene0000, tum/fr1_desk, tum/fr1_rpy, tum/fr1_rpy-cpu,\n"
-            "         7scenes, ...\n"
-            "resume an interrupted run:  lrslam run --resume runs/rpy   (only device, mapper_process,\n"
-            "         preload_kernels, data.max_bad_fraction, data.prefetch, data.prefetch_in, checkpoint_every,\n"
-            "         checkpoint_interval_s and mapping.keyframe_spill_dir may be changed on resume)"
-        ),
+        epilog=_epilog(),
     )
-    p.add_argument("--config", default=None, help="preset name or YAML file (default: synthetic)")
+    p.add_argument("--config", default=None, help="preset name or YAML file (default: the preset of the --data "
+                                                  "folder's detected kind; without --data: synthetic)")
+    p.add_argument("--profile", default=None, help="realtime, quality, paper or a YAML file (default: realtime on the "
+                                                   "CPU, paper with --device cuda)")
     p.add_argument("--data", default=None, help="dataset folder, ROS 1 .bag file or ROS 2 bag folder (default: the "
                                                 "preset's; synthetic: bundled)")
     p.add_argument("--out", default=None, help="output folder (default: runs/<preset>-<representation>)")
@@ -78,8 +96,8 @@ def main(args) -> int:
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if args.resume is not None:
-        given = [flag for flag, v in (("--config", args.config), ("--data", args.data), ("--out", args.out),
-                                      ("--realtime", args.realtime)) if v]
+        given = [flag for flag, v in (("--config", args.config), ("--profile", args.profile), ("--data", args.data),
+                                      ("--out", args.out), ("--realtime", args.realtime)) if v]
         if given:
             raise SlamInputError(f"--resume continues a run with its own config and data; drop {', '.join(given)}")
         out = Path(args.resume)
@@ -98,7 +116,11 @@ def main(args) -> int:
             overrides.append(f"device={args.device}")
         if args.realtime:
             overrides.append("data.realtime=true")
-        cfg = load_config(args.config or "synthetic", overrides)
+        preset = args.config or (data_preset(args.data) if args.data is not None else "synthetic")
+        cfg = load_config(preset, overrides, profile=args.profile)
+        if args.config is None and args.data is not None and not args.quiet:
+            print(f"lrslam run: {args.data}: {preset} data, profile {cfg.profile} (choose with --config, --profile)",
+                  file=sys.stderr)
         check_spill_dir(cfg)
         out = Path(args.out) if args.out else Path("runs") / f"{cfg.name.replace('/', '_')}-{cfg.representation}"
     if args.stop_after is not None and args.stop_after < 1:
@@ -124,6 +146,21 @@ def main(args) -> int:
         where = f"recording in {args.rerun} (view it with: rerun {args.rerun})" if args.rerun else "streamed"
         print(f"Rerun {where}; logging took {obs.log_s:.2f} s in this process ({share:.1f} % of the loop)")
     return 0
+
+
+def data_preset(path: str) -> str:
+    """The bundled preset for the data at ``path``: the one named after the dataset kind its layout is detected as
+    (``tum``, ``7scenes``, ``replica``, ``scannet``, ``bag``).
+
+    Raises:
+        SlamInputError: ``path`` is missing or no dataset's layout (the message lists the layouts)."""
+    from slam.config.presets import CONFIG_DIR
+    from slam.data import detect_layout
+
+    kind = detect_layout(Path(path).expanduser())
+    if not (CONFIG_DIR / f"{kind}.yaml").is_file():  # every probed kind has one: tests/slam/commands check it
+        raise SlamInputError(f"{path}: {kind} data has no preset; name one with --config")
+    return kind
 
 
 def viewer_observers(args) -> list:

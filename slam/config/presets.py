@@ -45,7 +45,7 @@ def list_presets() -> list[str]:
     names = []
     for p in sorted(CONFIG_DIR.rglob("*.yaml")):
         rel = p.relative_to(CONFIG_DIR).with_suffix("").as_posix()
-        if rel == "base" or rel.startswith("representations/"):
+        if rel == "base" or rel.startswith(("representations/", "profiles/")):
             continue
         names.append(rel)
     return names

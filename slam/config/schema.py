@@ -246,6 +246,9 @@ class Config:
     """The resolved configuration (written as ``config.yaml`` next to a run's outputs)."""
 
     name: str = "custom"
+    # the budget the config was read with (slam/configs/profiles/: realtime, quality, paper, or a YAML file's path);
+    # a record: the profile's keys are already in the config
+    profile: str = ""
     seed: int = num(0, lo=0, hi=2**32 - 1 - 7919)  # numpy seeds are 32-bit; the mapper draws from seed + 7919
     device: str = "cpu"
     threads: int = num(0, lo=0, hi=1024)  # 0 = leave torch's default

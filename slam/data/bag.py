@@ -84,7 +84,8 @@ class BagDataset(RGBDDataset):
         min_dt: seconds; drop frames closer than this to the previous kept one (0: keep all).
         interpolate_gt: interpolate ground truth at the colour stamp (else nearest sample).
         relative_to_first: express poses relative to the first kept frame (as the TUM loader).
-        crop_size, crop_edge, undistort, stride, max_frames: the common options (see :class:`RGBDDataset`).
+        crop_size, focal_px, crop_edge, crop_edge_raw, undistort, stride, max_frames: the common options (see
+            :class:`RGBDDataset`).
 
     Attributes: ``color_topic``, ``depth_topic``, ``camera_info_topic`` (None with the ``intrinsics`` option and
     no CameraInfo), ``gt_file`` (Path or None), ``depth_encoding``.
@@ -106,7 +107,9 @@ class BagDataset(RGBDDataset):
         interpolate_gt: bool = True,
         relative_to_first: bool = True,
         crop_size: tuple[int, int] | None = None,
-        crop_edge: int = 0,
+        crop_edge: int | None = None,
+        crop_edge_raw: int | None = None,
+        focal_px: float | None = None,
         undistort: bool = True,
         stride: int = 1,
         max_frames: int | None = None,
@@ -118,7 +121,7 @@ class BagDataset(RGBDDataset):
         self._pair(groundtruth, max_dt, min_dt, interpolate_gt, relative_to_first, stride, max_frames)
         size = self._check_first_frames(depth_scale)
         intr, dist = self._camera(size, intrinsics, distortion, undistort)
-        self._set_camera(intr, dist if undistort else None, crop_size, crop_edge)
+        self._set_camera(intr, dist if undistort else None, crop_size, crop_edge, crop_edge_raw, focal_px)
         log.info("%s: %d frames of %s and %s (%s), camera %s", self.root, len(self), self.color_topic,
                  self.depth_topic, self.depth_encoding, self.camera_info_topic or "from data.options.intrinsics")
 

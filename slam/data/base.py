@@ -11,6 +11,7 @@ import torch
 import torch.nn.functional as F
 
 from slam.core.camera import pixel_directions
+from slam.data.resize import resize_and_crop
 from slam.data.types import Frame, Intrinsics
 from slam.errors import SlamInputError
 from slam.core.geometry import check_rigid
@@ -82,8 +83,7 @@ def undistort_grid(intr: Intrinsics, dist: Sequence[float]) -> torch.Tensor:
 
 #: the keyword options every loader takes besides its own (passed on to :meth:`RGBDDataset._setup`; the table
 #: "Common keyword options" of docs/data.md); ``depth_scale`` and ``intrinsics`` are each loader's own
-COMMON_OPTIONS = ("crop_size", "crop_edge", "undistort", "stride", "max_frames")
-
+COMMON_OPTIONS = ("crop_size", "crop_edge", "crop_edge_raw", "focal_px", "undistort", "stride", "max_frames")
 
 class RGBDDataset:
     """A sequence of RGB-D frames on disk; ``ds[i]`` reads and processes frame ``i``.
@@ -97,7 +97,11 @@ class RGBDDataset:
 
     Args (common keyword options of every loader):
         crop_size: ``(H, W)`` to resize to, or None.
-        crop_edge: pixels to remove from every border after resizing.
+        focal_px: resize so the focal length becomes about this many pixels (:func:`slam.data.resize.working_size`), when
+            ``crop_size`` is not given; None: no resize.
+        crop_edge: pixels of the working image to remove from every border after resizing.
+        crop_edge_raw: the same counted on the raw image (a sensor's or undistortion's dark rim), scaled with the
+            resize and rounded, when ``crop_edge`` is not given.
         undistort: apply the distortion model to colour if the source has one.
         stride: keep every ``stride``-th frame.
         max_frames: keep at most this many frames (after stride).
@@ -119,7 +123,9 @@ class RGBDDataset:
         depth_scale: float,
         distortion: Sequence[float] | None = None,
         crop_size: tuple[int, int] | None = None,
-        crop_edge: int = 0,
+        crop_edge: int | None = None,
+        crop_edge_raw: int | None = None,
+        focal_px: float | None = None,
         undistort: bool = True,
         stride: int = 1,
         max_frames: int | None = None,
@@ -141,7 +147,7 @@ class RGBDDataset:
         if depth_scale <= 0:
             raise SlamInputError(f"{self.root}: depth scale must be positive, got {depth_scale}")
         self.depth_scale = float(depth_scale)
-        self._set_camera(intrinsics, distortion if undistort else None, crop_size, crop_edge)
+        self._set_camera(intrinsics, distortion if undistort else None, crop_size, crop_edge, crop_edge_raw, focal_px)
         log.debug("opened %r (raw camera %s, distortion %s)", self, intrinsics, self.distortion)
 
     def _select(self, n: int, poses, timestamps: Sequence[float], stride: int, max_frames: int | None,
@@ -164,12 +170,16 @@ class RGBDDataset:
         return sel
 
     def _set_camera(self, intrinsics: Intrinsics, distortion: Sequence[float] | None,
-                    crop_size: tuple[int, int] | None, crop_edge: int) -> None:
-        """The raw camera, the distortion to undo (None: none) and the camera after resizing and cropping."""
+                    crop_size: tuple[int, int] | None, crop_edge: int | None = None, crop_edge_raw: int | None = None,
+                    focal_px: float | None = None) -> None:
+        """The raw camera, the distortion to undo (None: none) and the camera after resizing and cropping (the
+        options of the class's text)."""
         self.raw_intrinsics = intrinsics
         self.distortion = tuple(float(d) for d in distortion) if distortion is not None else None
-        self.crop_size = tuple(int(s) for s in crop_size) if crop_size is not None else None
-        self.crop_edge = int(crop_edge)
+        try:
+            self.crop_size, self.crop_edge = resize_and_crop(intrinsics, crop_size, crop_edge, crop_edge_raw, focal_px)
+        except SlamInputError as exc:
+            raise SlamInputError(f"{self.root}: {exc}") from None
         intr = intrinsics
         if self.crop_size is not None:
             intr = intr.resized(*self.crop_size)

@@ -253,19 +253,18 @@ def _preset_exists(name: str) -> bool:
 
 
 def run_commands(dataset: str, scene: str | None, data: Path) -> list[str]:
-    """The ``lrslam run`` command line(s) for a downloaded ``data`` folder: the matching preset first
-    (``tum/fr1_rpy``, ``replica/room0``, else the dataset's generic one), then a CPU-sized variant if any."""
+    """The ``lrslam run`` command lines for a downloaded ``data`` folder: on the CPU (the realtime profile), then on
+    a GPU (the paper profile), with the sequence's own preset where one exists (``tum/fr1_rpy``, ``replica/room0``;
+    it holds a published box), else the preset ``--data`` alone detects."""
     src = resolve(dataset, scene)
     where = shlex.quote(str(data))
-    if src.dataset == "7scenes":
-        return [f"lrslam run --config 7scenes --data {where}"]
     if src.dataset == "replica":
         name = f"replica/{Path(src.data).name}"
-    else:
+    elif src.dataset == "tum":
         n, seq = tum_sequence(scene)
         name = f"tum/fr{n}_{seq}"
-    preset = name if _preset_exists(name) else src.dataset
-    lines = [f"lrslam run --config {preset} --data {where} --device cuda"]
-    if _preset_exists(f"{preset}-cpu"):
-        lines.append(f"lrslam run --config {preset}-cpu --data {where}        # CPU-sized")
-    return lines
+    else:
+        name = src.dataset
+    config = f"--config {name} " if name != src.dataset and _preset_exists(name) else ""
+    return [f"lrslam run {config}--data {where}                # real time on the CPU",
+            f"lrslam run {config}--data {where} --device cuda  # the published settings on a GPU"]

@@ -35,7 +35,7 @@ def test_every_stage_of_a_mapping_call_is_timed_and_the_graph_walked(bench, tiny
     assert sum(parts) < r["stages_ms"]["render (forward)"] < r["per_iteration_ms"]
     assert r["iters_per_call"] == 3 and r["aten_ops_per_iteration"] > 100
     # one leaf per map parameter (no BA yet with 3 keyframes): the walk reaches the whole graph
-    scene = SceneModel(load_config("synthetic", over), torch.tensor([[0.0, 1.0]] * 3))
+    scene = SceneModel(load_config("synthetic", over, profile="quality"), torch.tensor([[0.0, 1.0]] * 3))
     assert r["autograd_node_kinds"]["AccumulateGrad"] == len(list(scene.parameters()))
     assert r["python_backward_nodes"] >= 3  # the fused field queries' Functions at least
 

@@ -41,10 +41,10 @@ def test_a_field_kind_is_one_class_and_one_registry_line(monkeypatch):
 
     overrides = ["geometry.kind=toy_plane_line", "geometry.rank=3", "bound=[[0,1],[0,1],[0,1]]"]
     with pytest.raises(SlamInputError, match="geometry.kind"):
-        load_config("synthetic", overrides)
+        load_config("synthetic", overrides, profile="quality")
     monkeypatch.setitem(tdfields.KINDS, PlaneLine.kind, PlaneLine)  # the registry line
     assert "toy_plane_line" in FIELD_KINDS
-    cfg = load_config("synthetic", overrides)
+    cfg = load_config("synthetic", overrides, profile="quality")
     torch.manual_seed(0)
     model = SceneModel(cfg, scene_aabb(cfg.scene.bound, 0.24))
     levels = model.fields["geometry"].levels
@@ -100,9 +100,9 @@ def test_a_dataset_is_one_module_and_one_registry_line(tmp_path, monkeypatch):
     with pytest.raises(SlamInputError, match="unknown dataset kind 'nope'; expected auto, replica, .*, toy"):
         load_dataset(root, kind="nope")
     for kind in ("toy", "auto"):  # a run's config: data.kind names it, or detection finds it
-        cfg = load_config("synthetic", [f"data.kind={kind}", f"data.path={root}"])
+        cfg = load_config("synthetic", [f"data.kind={kind}", f"data.path={root}"], profile="quality")
         assert isinstance(load_data(cfg), ToyDataset)
-    cfg = load_config("synthetic", ["data.kind=tum", f"data.path={root}"])
+    cfg = load_config("synthetic", ["data.kind=tum", f"data.path={root}"], profile="quality")
     with pytest.raises(SlamInputError, match="expects tum data but .* looks like toy data"):
         load_data(cfg)
 
@@ -150,7 +150,7 @@ def test_field_kinds_are_tdfields_kinds_and_ranks_come_from_them():
     from slam.model.scene import field_spec
 
     for kind, cls in tdfields.KINDS.items():
-        spec = load_config("synthetic", [f"geometry.kind={kind}"]).geometry
+        spec = load_config("synthetic", [f"geometry.kind={kind}"], profile="quality").geometry
         assert ("rank" in field_spec(spec, torch.tensor([[0.0, 1.0]] * 3))["levels"][0]) == cls.has_rank
 
 
@@ -160,18 +160,24 @@ def test_representations_are_the_representation_files():
     files = sorted(p.stem for p in (CONFIG_DIR / "representations").glob("*.yaml"))
     assert REPRESENTATIONS[0] == "lrslam" and sorted(REPRESENTATIONS) == files
     for rep in REPRESENTATIONS:
-        cfg = load_config("synthetic", [f"representation={rep}"])
+        cfg = load_config("synthetic", [f"representation={rep}"], profile="quality")
         assert cfg.geometry.kind in tdfields.KINDS and cfg.appearance.kind in tdfields.KINDS
 
 
 def test_presets_name_registered_datasets_with_their_reference_options():
     """``data.kind`` has no schema choices (slam.config sits below slam.data), so every preset is checked here; the
-    dataset presets hold the reference options the registry declares."""
+    dataset presets at the paper profile crop and resize as the reference options the registry declares."""
+    from slam.data.resize import resize_and_crop
+    from slam.data.types import Intrinsics
+
     for name in list_presets():
         assert load_config(name).data.kind in ("auto", *DATASETS), name
+    raw = Intrinsics(517.3, 516.5, 318.6, 255.3, 480, 640)  # the sizes are what matters: every reference is 640x480
+    keys = ("crop_size", "crop_edge", "crop_edge_raw", "focal_px")
     for name, ref in REFERENCE_OPTIONS.items():
-        options = load_config(name).data.options
-        assert {k: tuple(v) if isinstance(v, list) else v for k, v in options.items() if k in ref} == ref, name
+        options = load_config(name, profile="paper").data.options
+        assert resize_and_crop(raw, **{k: options.get(k) for k in keys}) == \
+               resize_and_crop(raw, **{k: ref.get(k) for k in keys}), name
     assert set(REFERENCE_OPTIONS) == {n for n, d in DATASETS.items() if d.reference_options is not None}
 
 
@@ -186,9 +192,9 @@ def test_download_names_come_from_the_registry():
 def test_every_keyframe_storage_is_one_the_engine_keeps():
     from slam.engine.keyframes import Keyframe, KeyframeStore, bytes_per_keyframe
 
-    assert load_config("synthetic").mapping.keyframe_storage == KEYFRAME_STORAGES[0]
+    assert load_config("synthetic", profile="quality").mapping.keyframe_storage == KEYFRAME_STORAGES[0]
     for storage in KEYFRAME_STORAGES:
-        load_config("synthetic", [f"mapping.keyframe_storage={storage}"])
+        load_config("synthetic", [f"mapping.keyframe_storage={storage}"], profile="quality")
         store = KeyframeStore(storage=storage)
         store.add(Keyframe(0, torch.rand(12, 16, 3), torch.rand(12, 16), torch.tensor([1.0, 0, 0, 0, 0, 0, 0])))
         assert store.nbytes == bytes_per_keyframe(12, 16, storage)

@@ -15,7 +15,7 @@ def _save_run(data, path, keyframes=(0,), overrides=()):
     from slam.data import load_dataset
 
     cfg = load_config("synthetic", [f"data.path={data}", "representation=sa_cp", "meshing.resolution=0.1",
-                                    *overrides])
+                                    *overrides], profile="quality")
     ds = load_dataset(data)
     aabb = scene_aabb(cfg.scene.bound, cfg.scene.bound_dividable)
     torch.manual_seed(0)
@@ -129,7 +129,7 @@ def test_mesh_without_the_data_uses_the_hull_stored_in_the_checkpoint(tiny_seq, 
 
     data = tmp_path / "data"
     shutil.copytree(tiny_seq, data)
-    cfg = load_config("synthetic", [f"data.path={data}", *TINY, "meshing.cull=false", "meshing.resolution=0.05"])
+    cfg = load_config("synthetic", [f"data.path={data}", *TINY, "meshing.cull=false", "meshing.resolution=0.05"], profile="quality")
     run_to_folder(cfg, tmp_path / "run", progress=False, mesh=True)
     shutil.rmtree(data)
     assert main(["mesh", str(tmp_path / "run" / "checkpoint.pt"), "--no-cull", "--out", str(tmp_path / "m.ply")]) == 0

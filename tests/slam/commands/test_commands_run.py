@@ -15,7 +15,7 @@ def test_a_missing_keyframe_spill_dir_stops_only_a_fresh_run_that_would_spill(ti
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     spill = [f"mapping.keyframe_spill_dir={scratch}", "mapping.keyframes_in_memory=1"]
-    run = ["run", "--data", str(tiny_seq), "--quiet", "--no-mesh"]
+    run = ["run", "--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--quiet", "--no-mesh"]
     out = tmp_path / "run"
     assert main([*run, "--out", str(out), "--stop-after", "2", *TINY, *spill]) == 0
     capsys.readouterr()
@@ -41,7 +41,7 @@ def test_a_resume_may_name_another_keyframe_spill_dir(tiny_seq, tmp_path):
     old.mkdir()
     new.mkdir()
     out = tmp_path / "run"
-    assert main(["run", "--data", str(tiny_seq), "--quiet", "--no-mesh", "--out", str(out), "--stop-after", "2", *TINY,
+    assert main(["run", "--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--quiet", "--no-mesh", "--out", str(out), "--stop-after", "2", *TINY,
                  f"mapping.keyframe_spill_dir={old}", "mapping.keyframes_in_memory=1"]) == 0
     old.rmdir()
     assert main(["run", "--resume", str(out), "--quiet", "--no-mesh", f"mapping.keyframe_spill_dir={new}"]) == 0

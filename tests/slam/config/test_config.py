@@ -6,37 +6,16 @@ from slam.errors import SlamInputError
 
 def test_presets_exist_and_resolve():
     names = list_presets()
-    for name in ("synthetic", "replica/room0", "scannet/scene0000", "tum/fr1_desk", "tum/fr1_rpy",
-                 "tum/fr1_rpy-cpu"):
+    for name in ("synthetic", "synthetic/walk", "replica", "replica/room0", "scannet/scene0000", "tum/fr1_desk",
+                 "tum/fr1_rpy", "7scenes", "bag"):
         assert name in names
         cfg = load_config(name)
-        assert cfg.name == name
-
-
-def test_the_fast_preset_is_the_cpu_preset_with_the_measured_levers():
-    """tum/fr1_rpy-cpu-fast (docs/slam.md, "The fast preset") differs from tum/fr1_rpy-cpu only by the levers its
-    5-seed numbers were measured with."""
-    from dataclasses import asdict
-
-    fast, cpu = asdict(load_config("tum/fr1_rpy-cpu-fast")), asdict(load_config("tum/fr1_rpy-cpu"))
-    levers = {("tracking", "optimizer"): "gauss_newton", ("tracking", "gn_prior"): 0.03,
-              ("tracking", "gn_hessian"): "first", ("tracking", "gn_iters"): 4, ("mapping", "schedule"): "by_need",
-              ("mapping", "optimizer_state"): "persistent", ("rendering", "fused"): True,
-              ("rendering", "n_stratified"): 8, ("rendering", "color_cutoff"): 0.01,
-              ("mapping", "rays_without_depth"): "skip", ("mapping", "need_max_gap"): 4,
-              ("mapping", "need_gap_iters"): 5}
-    for (group, key), value in levers.items():
-        assert fast[group][key] == value and cpu[group][key] != value, (group, key)
-        fast[group][key] = cpu[group][key]
-    assert fast["mapper_process"] and not cpu["mapper_process"]  # the same results, bit for bit
-    assert fast["data"]["prefetch_in"] == "waits" and cpu["data"]["prefetch_in"] == "thread"  # the same frames
-    fast["name"], fast["mapper_process"] = cpu["name"], False
-    fast["data"]["prefetch_in"], fast["data"]["prefetch"] = cpu["data"]["prefetch_in"], cpu["data"]["prefetch"]
-    assert fast == cpu
+        assert cfg.name == name and cfg.profile == "realtime"
+    assert not any(name.startswith("profiles/") for name in names)
 
 
 def test_layering_base_dataset_scene():
-    cfg = load_config("tum/fr1_desk")
+    cfg = load_config("tum/fr1_desk", profile="paper")
     assert cfg.tracking.iters == 200 and cfg.tracking.lr_t == 0.01  # dataset layer
     assert cfg.scene.bound == [[-4.6, 2.6], [-3.3, 3.2], [-2.0, 4.9]]  # scene layer
     assert cfg.mapping.lr_decoders == 0.001  # base
@@ -46,10 +25,10 @@ def test_layering_base_dataset_scene():
 
 
 def test_representation_switch_and_overrides():
-    cfg = load_config("replica/room0", ["representation=eslam", "tracking.iters=3", "bound=auto"])
+    cfg = load_config("replica/room0", ["representation=eslam", "tracking.iters=3", "bound=auto"], profile="paper")
     assert cfg.geometry.kind == "triplane" and cfg.appearance.kind == "triplane"
     assert cfg.tracking.iters == 3 and cfg.scene.bound == "auto"
-    cfg = load_config("replica/room0", ["representation=cp_cp", "appearance.rank=4"])
+    cfg = load_config("replica/room0", ["representation=cp_cp", "appearance.rank=4"], profile="paper")
     assert cfg.appearance.kind == "cp" and cfg.appearance.rank == 4
 
 
@@ -84,19 +63,19 @@ def test_yaml_file_preset(tmp_path):
 
 
 def test_color_cutoff_is_validated():
-    assert load_config("synthetic", ["rendering.color_cutoff=0"]).rendering.color_cutoff == 0.0
+    assert load_config("synthetic", ["rendering.color_cutoff=0"], profile="quality").rendering.color_cutoff == 0.0
     with pytest.raises(SlamInputError, match="color_cutoff"):
-        load_config("synthetic", ["rendering.color_cutoff=-0.1"])
+        load_config("synthetic", ["rendering.color_cutoff=-0.1"], profile="quality")
 
 
 def test_exponent_notation_is_a_number():
     """YAML 1.1 reads '1e-3' (no dot) as a string; a float key takes it as the number, other strings still fail."""
-    assert load_config("synthetic", ["rendering.color_cutoff=1e-3"]).rendering.color_cutoff == 1e-3
-    assert load_config("synthetic", ["mapping.lr_geometry=5E-3"]).mapping.lr_geometry == 5e-3
+    assert load_config("synthetic", ["rendering.color_cutoff=1e-3"], profile="quality").rendering.color_cutoff == 1e-3
+    assert load_config("synthetic", ["mapping.lr_geometry=5E-3"], profile="quality").mapping.lr_geometry == 5e-3
     with pytest.raises(SlamInputError, match="mapping.lr_geometry"):
-        load_config("synthetic", ["mapping.lr_geometry=1e"])
+        load_config("synthetic", ["mapping.lr_geometry=1e"], profile="quality")
     with pytest.raises(SlamInputError, match="keep_freed_memory"):
-        load_config("synthetic", ["keep_freed_memory=maybe"])
+        load_config("synthetic", ["keep_freed_memory=maybe"], profile="quality")
 
 
 def _numeric_keys(cls=None, prefix=""):
@@ -145,20 +124,20 @@ def test_out_of_range_values_name_key_value_and_range(key):
     rng = f.metadata.get("range", Range(0))
     bad = _bad_value(key, rng)
     with pytest.raises(SlamInputError, match=rf"config key '{key}' = .* is out of range: must be"):
-        load_config("synthetic", [f"{key}={bad}"])
+        load_config("synthetic", [f"{key}={bad}"], profile="quality")
     # the values a user (or a script's bug) types: never accepted, never a traceback, always one line naming the key
     for odd in (".inf", "-.inf", ".nan", "-1", "1e30", "1.0e+300"):
         value = f"[{odd}, {odd}]" if key.endswith(("cell_sizes", "ignore_edge")) else odd
         with pytest.raises(SlamInputError, match=rf"config key '{key}'") as info:
-            load_config("synthetic", [f"{key}={value}"])
+            load_config("synthetic", [f"{key}={value}"], profile="quality")
         assert "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("n", [1, 2])
 def test_max_keyframes_below_three_breaks_the_keep_first_and_last_two_rule(n):
     with pytest.raises(SlamInputError, match="'mapping.max_keyframes' = .* must be 0 .* or >= 3"):
-        load_config("synthetic", [f"mapping.max_keyframes={n}"])
-    assert load_config("synthetic", ["mapping.max_keyframes=3"]).mapping.max_keyframes == 3
+        load_config("synthetic", [f"mapping.max_keyframes={n}"], profile="quality")
+    assert load_config("synthetic", ["mapping.max_keyframes=3"], profile="quality").mapping.max_keyframes == 3
 
 
 def test_keyframe_spill_dir_is_checked_where_a_fresh_run_starts_not_when_a_config_is_read(tmp_path):
@@ -169,13 +148,13 @@ def test_keyframe_spill_dir_is_checked_where_a_fresh_run_starts_not_when_a_confi
     missing = tmp_path / "no such dir"
     (tmp_path / "a file").write_text("")
     for spill in (missing, tmp_path / "a file"):
-        cfg = load_config("synthetic", [f"mapping.keyframe_spill_dir={spill}"])
+        cfg = load_config("synthetic", [f"mapping.keyframe_spill_dir={spill}"], profile="quality")
         assert cfg.mapping.keyframe_spill_dir == str(spill)
         with pytest.raises(SlamInputError, match=r"'mapping.keyframe_spill_dir' = .* is not a folder \(keyframe"):
             check_spill_dir(cfg)
         check_spill_dir(load_config("synthetic", [f"mapping.keyframe_spill_dir={spill}",
-                                                  "mapping.keyframes_in_memory=0"]))  # never spills
-    check_spill_dir(load_config("synthetic", [f"mapping.keyframe_spill_dir={tmp_path}"]))
+                                                  "mapping.keyframes_in_memory=0"], profile="quality"))  # never spills
+    check_spill_dir(load_config("synthetic", [f"mapping.keyframe_spill_dir={tmp_path}"], profile="quality"))
 
 
 def test_ignore_edge_must_leave_pixels_in_the_working_image(tiny_seq, capsys):
@@ -189,7 +168,7 @@ def test_ignore_edge_must_leave_pixels_in_the_working_image(tiny_seq, capsys):
 
 def test_moved_keys_say_where_they_went():
     with pytest.raises(SlamInputError, match="'meshing.eval_samples' is now 'evaluation.samples'"):
-        load_config("synthetic", ["meshing.eval_samples=10"])
+        load_config("synthetic", ["meshing.eval_samples=10"], profile="quality")
 
 
 def test_cli_exits_2_with_one_line_for_a_bad_value(capsys):
@@ -213,7 +192,7 @@ def test_saved_config_reloads_identically(tmp_path):
 def test_configs_written_by_older_versions_are_upgraded():
     from slam.config import config_from_dict
 
-    old = load_config("synthetic").to_dict()
+    old = load_config("synthetic", profile="quality").to_dict()
     old["meshing"].update(eval_samples=1234, eval_icp=False, depth_l1_views=7)
     del old["evaluation"]
     cfg = config_from_dict(old, upgrade=True)
@@ -223,6 +202,6 @@ def test_configs_written_by_older_versions_are_upgraded():
 
 
 def test_a_partial_nested_override_keeps_the_other_defaults():
-    cfg = load_config("synthetic", ["tracking.weights.fs=0", "mapping.weights.color=2"])
+    cfg = load_config("synthetic", ["tracking.weights.fs=0", "mapping.weights.color=2"], profile="quality")
     assert (cfg.tracking.weights.fs, cfg.tracking.weights.center, cfg.tracking.weights.tail) == (0.0, 200.0, 50.0)
     assert (cfg.mapping.weights.color, cfg.mapping.weights.fs, cfg.mapping.weights.depth) == (2.0, 5.0, 0.1)

@@ -137,7 +137,7 @@ def test_precedence_options_over_calibration_file_over_folder_name(tmp_path):
 
     cfg = load_config("tum", [f"data.path={root}", "data.options.intrinsics={fx: 45, fy: 45, cx: 31.5, cy: 23.5}",
                               "data.options.crop_size=null", "data.options.crop_edge=0",
-                              "data.options.depth_scale=4000"])
+                              "data.options.depth_scale=4000"], profile="paper")
     ds = load_data(cfg)
     assert ds.intrinsics == Intrinsics(45.0, 45.0, 31.5, 23.5, 48, 64) and ds.depth_scale == 4000.0
 

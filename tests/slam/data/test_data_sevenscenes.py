@@ -146,9 +146,10 @@ def test_layout_detection(tmp_path):
 def test_preset_loads_and_validates():
     from slam.config import load_config, list_presets
 
-    cfg = load_config("7scenes")
+    cfg = load_config("7scenes", profile="quality")
     assert "7scenes" in list_presets() and cfg.name == "7scenes"
-    assert cfg.data.kind == "7scenes" and cfg.data.options == {"crop_size": [240, 320], "crop_edge": 4}
+    assert cfg.data.kind == "7scenes" and cfg.data.options == {"crop_size": [240, 320], "crop_edge_raw": 8,
+                                                               "focal_px": 207}
     assert (cfg.rendering.n_stratified, cfg.rendering.n_importance) == (16, 8)
     assert (cfg.tracking.iters, cfg.tracking.pixels, cfg.mapping.every_frame, cfg.mapping.keyframe_every) == (20, 400, 1, 1)
     assert cfg.scene.bound == "auto" and cfg.representation == "lrslam"
@@ -180,7 +181,7 @@ def test_lrslam_run_with_the_preset(tiny_seq, tmp_path, capsys):
     root = tmp_path / "room" / "seq-01"
     camera = _synthetic_as_7scenes(tiny_seq, root)
     args = ["run", "--config", "7scenes", "--data", str(root), "--quiet", "--no-mesh", *TINY, camera,
-            "data.options.crop_size=null", "data.options.crop_edge=0", "tracking.ignore_edge=[4,4]"]
+            "data.options.crop_size=null", "data.options.crop_edge=0", "tracking.ignore_edge=[4,4]", "--profile", "quality"]
     out = tmp_path / "run"
     assert main([*args, "--out", str(out)]) == 0, capsys.readouterr().err
     m = json.loads((out / "metrics.json").read_text())

@@ -89,7 +89,7 @@ def _system(tiny_seq, overrides=(), **edit):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, *overrides])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, *overrides], profile="quality")
     return SLAM(cfg, EditedDataset(load_data(cfg), **edit))
 
 

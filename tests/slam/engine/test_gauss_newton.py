@@ -18,7 +18,7 @@ def mapped(tiny_seq):
     from slam.engine.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "mapping.iters=10",
-                                    "tracking.pixels=300", "rendering.color_cutoff=0"])
+                                    "tracking.pixels=300", "rendering.color_cutoff=0"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     for k in range(6):
         s.step(k)

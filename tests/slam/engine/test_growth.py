@@ -20,7 +20,7 @@ def _decide(extra=(), depth=2.0, box=((-3.0, 3.0), (-3.0, 3.0), (-1.0, 2.1))):
     """What SceneGrowth decides for a flat wall ``depth`` metres ahead of a camera at the origin looking along +z
     (points x in +-1.6, y in +-1.2, z = depth), and the events it logged."""
     events = []
-    g = SceneGrowth(load_config("synthetic", list(extra)), lambda k, what, **kw: events.append((k, what, kw)))
+    g = SceneGrowth(load_config("synthetic", list(extra), profile="quality"), lambda k, what, **kw: events.append((k, what, kw)))
     intr = Intrinsics(fx=50.0, fy=50.0, cx=39.5, cy=29.5, height=60, width=80)
     step = g.decide(3, torch.full((60, 80), depth), matrix_to_pose(torch.eye(4)), intr, torch.tensor(box))
     return g, step, events
@@ -34,7 +34,7 @@ def test_growth_triggers_where_the_depth_nears_the_box():
     assert _decide(["scene.grow=true"], depth=1.7)[1] is None  # 1.7 + 0.3 m is inside
     assert _decide()[1] is None  # grow: auto keeps a given box (the synthetic preset's)
     assert _decide(["scene.grow=false", "bound=auto"])[1] is None
-    assert SceneGrowth(load_config("synthetic", ["bound=auto"]), None).enabled
+    assert SceneGrowth(load_config("synthetic", ["bound=auto"], profile="quality"), None).enabled
 
 
 def test_the_cap_stops_growth_with_one_event_per_side():
@@ -62,7 +62,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool):
     from slam.engine.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10", *GROWING,
-                                    f"parallel={str(parallel).lower()}"])
+                                    f"parallel={str(parallel).lower()}"], profile="quality")
     seen, written, pending = {}, {}, []
     real_track, real_map, real_grow = tracking_mod.track_frame, mw.map_frame, mw.MapWorker.grow
 

@@ -24,10 +24,10 @@ def test_a_mapper_process_gives_the_thread_modes_run_through_a_growth_a_stop_and
     from slam.run.runner import RunInterrupted, run_to_folder
 
     run = [f"data.path={tiny_seq}", *RUN, "parallel=true", f"mapping.optimizer_state={state}"]
-    thread = load_config("synthetic", run)
+    thread = load_config("synthetic", run, profile="quality")
     # and the process run reads its frames in the tracker's waits (data.prefetch_in: waits) in one of the two
     reader = "waits" if state == "persistent" else "thread"
-    proc = load_config("synthetic", [*run, "mapper_process=true", f"data.prefetch_in={reader}"])
+    proc = load_config("synthetic", [*run, "mapper_process=true", f"data.prefetch_in={reader}"], profile="quality")
     full = run_to_folder(thread, tmp_path / "thread", progress=False, mesh=False)
     at = next(e["frame"] for e in full["events"] if "growth" in e)
     out = tmp_path / "process"
@@ -68,7 +68,7 @@ def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline
     from slam.engine.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "mapping.every_frame=1",
-                                    "mapping.keyframe_every=1", "mapping.optimizer_state=persistent"])
+                                    "mapping.keyframe_every=1", "mapping.optimizer_state=persistent"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     try:
         for k in range(3):
@@ -105,7 +105,7 @@ def test_a_dead_mapper_process_is_an_error_that_names_it(tiny_seq):
     from slam.engine.system import SLAM
     from slam.errors import SlamRunError
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true", "mapper_process=true"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true", "mapper_process=true"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     try:
         assert s.mapper.process._proc.is_alive()  # spawned (and its imports done) before the first frame
@@ -122,7 +122,7 @@ def test_a_dead_mapper_process_is_an_error_that_names_it(tiny_seq):
 
 def test_mapper_process_needs_parallel():
     with pytest.raises(SlamInputError, match="'mapper_process'"):
-        load_config("synthetic", ["parallel=false", "mapper_process=true"])
+        load_config("synthetic", ["parallel=false", "mapper_process=true"], profile="quality")
 
 
 def test_a_failed_call_is_not_paired_with_the_next_reply(tiny_seq):
@@ -137,7 +137,7 @@ def test_a_failed_call_is_not_paired_with_the_next_reply(tiny_seq):
     from slam.engine.system import SLAM
     from slam.errors import SlamRunError
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "preload_kernels=false"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "preload_kernels=false"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     proc = MapProcess(cfg, s.intr, "cpu", lambda job, reply: reply)
     try:
@@ -174,7 +174,7 @@ def test_a_system_that_fails_to_start_ends_its_mapping_process_and_close_deletes
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true", "mapper_process=true",
                                     "mapping.every_frame=1", "mapping.keyframe_every=1",
-                                    "mapping.keyframes_in_memory=1", f"mapping.keyframe_spill_dir={tmp_path}"])
+                                    "mapping.keyframes_in_memory=1", f"mapping.keyframe_spill_dir={tmp_path}"], profile="quality")
     spawned, real_spawn = [], MapProcess.spawn
 
     def spawn(self, *a, **k):
@@ -213,8 +213,8 @@ def test_the_public_switches_together_give_the_thread_modes_run_in_a_process_thr
            "mapping.keyframes_in_memory=1", f"mapping.keyframe_spill_dir={tmp_path}", "mapping.schedule=by_need",
            "mapping.need_young=2", "mapping.need_max_gap=2", "mapping.keyframe_every=2",
            "mapping.optimizer_state=persistent", "tracking.optimizer=gauss_newton", "tracking.gn_iters=3"]
-    full = run_to_folder(load_config("synthetic", run), tmp_path / "thread", progress=False, mesh=False)
-    proc = load_config("synthetic", [*run, "mapper_process=true"])
+    full = run_to_folder(load_config("synthetic", run, profile="quality"), tmp_path / "thread", progress=False, mesh=False)
+    proc = load_config("synthetic", [*run, "mapper_process=true"], profile="quality")
     out = tmp_path / "process"
     with pytest.raises(RunInterrupted):
         run_to_folder(proc, out, progress=False, mesh=False, stop_after=9)

@@ -25,7 +25,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool, every: int):
     from slam.engine.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10",
-                                    f"mapping.every_frame={every}", f"parallel={str(parallel).lower()}"])
+                                    f"mapping.every_frame={every}", f"parallel={str(parallel).lower()}"], profile="quality")
     seen, written = {}, {}
     real_track, real_map = tracking_mod.track_frame, mw.map_frame
 
@@ -74,7 +74,7 @@ def test_a_mesh_mid_run_waits_for_the_mapper_instead_of_freezing_its_scene(tiny_
     from slam.model.mesher import run_mesh
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=8", "mapping.every_frame=1",
-                                    "parallel=true", "meshing.resolution=0.1"])
+                                    "parallel=true", "meshing.resolution=0.1"], profile="quality")
     faces = []
 
     class Mesher(Observer):
@@ -100,7 +100,7 @@ def test_the_keyframe_mirror_takes_the_mapping_processs_drop_and_its_poses():
     def pose(x):
         return torch.tensor([1.0, 0, 0, 0, x, 0, 0])
 
-    cfg = load_config("synthetic", [*TINY[1:], "mapping.max_keyframes=4"])
+    cfg = load_config("synthetic", [*TINY[1:], "mapping.max_keyframes=4"], profile="quality")
     scene = SceneModel(cfg, torch.tensor([[-1.0, 1.0]] * 3))
     store = KeyframeStore.for_mapping(cfg.mapping)
     for i, x in enumerate([0.0, 0.5, 0.52, 1.0]):  # by these poses keyframe 2 (2 cm from 1) is the redundant one

@@ -17,7 +17,7 @@ def setup(tiny_seq):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.iters=3"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.iters=3"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     for k in range(5):  # a warm map with keyframes, so the call below runs BA too
         s.step(k)
@@ -144,7 +144,7 @@ def eslam_setup(tiny_seq):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.iters=3", "representation=eslam"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.iters=3", "representation=eslam"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     for k in range(5):
         s.step(k)

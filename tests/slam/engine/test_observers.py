@@ -25,7 +25,7 @@ def test_a_new_observer_sees_every_frame_through_a_read_only_view_and_can_stop_t
         def stop_requested(self):
             return len(self.seen) >= 3
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     obs = StopAtThree()
     s.run(progress=False, observers=[obs])

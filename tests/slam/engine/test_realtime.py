@@ -70,7 +70,7 @@ def test_a_slow_loop_drops_the_frames_it_missed_and_reports_them(tiny_seq, tmp_p
 
     _simulated(monkeypatch, 0.105)
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=12", f"parallel={parallel}",
-                                    "data.realtime=true", "mapping.every_frame=2"])
+                                    "data.realtime=true", "mapping.every_frame=2"], profile="quality")
     m = run_to_folder(cfg, tmp_path / "rt", progress=False, mesh=False)
     rows = [ln.split()[0] for ln in (tmp_path / "rt" / "trajectory.txt").read_text().splitlines()
             if not ln.startswith("#")]
@@ -97,7 +97,7 @@ def test_a_stopped_real_time_run_resumes_from_the_frames_it_processed(tiny_seq, 
 
     clock = _simulated(monkeypatch, 0.105)
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=12", "parallel=true",
-                                    "data.realtime=true"])
+                                    "data.realtime=true"], profile="quality")
     out = tmp_path / "rt"
     with pytest.raises(RunInterrupted):
         run_to_folder(cfg, out, progress=False, mesh=False, stop_after=2)

@@ -16,7 +16,7 @@ def _system(tiny_seq, overrides=(), blank=()):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, *overrides])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, *overrides], profile="quality")
     return SLAM(cfg, EditedDataset(load_data(cfg), blank=blank))
 
 
@@ -70,7 +70,7 @@ def test_dropouts_unreadable_and_lost_frames_keep_the_trajectory_close_to_the_cl
     def ate_cm(s):
         return 100 * ate(s.view().poses(), s.gt[: len(s.state.est)].numpy()).rmse
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, "tracking.iters=4"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, "tracking.iters=4"], profile="quality")
     clean = SLAM(cfg, load_data(cfg))
     clean.run(progress=False)
     _make_lost(monkeypatch, lambda: gapped.frames.get(15).depth)
@@ -140,8 +140,8 @@ def test_recovery_and_relocalisation_with_the_gauss_newton_tracker_take_twice_it
     import slam.engine.recovery as recovery
     from slam.engine.recovery import retry_iters
 
-    adam = load_config("synthetic", ["tracking.iters=7", "tracking.gn_iters=3"])
-    gn = load_config("synthetic", ["tracking.iters=7", "tracking.gn_iters=3", "tracking.optimizer=gauss_newton"])
+    adam = load_config("synthetic", ["tracking.iters=7", "tracking.gn_iters=3"], profile="quality")
+    gn = load_config("synthetic", ["tracking.iters=7", "tracking.gn_iters=3", "tracking.optimizer=gauss_newton"], profile="quality")
     assert (retry_iters(adam), retry_iters(gn)) == (14, 6)
     caps, real = [], recovery.track_frame
 

@@ -28,7 +28,7 @@ def test_the_preload_rehearses_both_calls_and_changes_no_result(tiny_seq, monkey
     runs = {}
     for preload in (True, False):
         cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true",
-                                        "mapping.optimizer_state=persistent", f"preload_kernels={preload}"])
+                                        "mapping.optimizer_state=persistent", f"preload_kernels={preload}"], profile="quality")
         s = SLAM(cfg, load_data(cfg))
         try:
             assert calls == {"map": 2, "track": 1}  # before the first frame (the second system: none more)
@@ -51,7 +51,7 @@ def test_a_rehearsal_that_fails_is_a_warning(tiny_seq, caplog, monkeypatch):
 
     monkeypatch.setattr(rehearsal, "map_frame", broken)
     monkeypatch.setattr(rehearsal, "track_frame", broken)
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=true"], profile="quality")
     with caplog.at_level(logging.WARNING, logger="slam.engine.rehearsal"):
         s = SLAM(cfg, load_data(cfg))  # the preload fails, the system is made all the same
     try:
@@ -70,4 +70,4 @@ def test_preload_kernels_is_a_checked_bool(value):
     from slam.errors import SlamInputError
 
     with pytest.raises(SlamInputError, match="preload_kernels"):
-        load_config("synthetic", [f"preload_kernels={value}"])
+        load_config("synthetic", [f"preload_kernels={value}"], profile="quality")

@@ -51,7 +51,7 @@ def test_the_loop_gives_each_call_its_iterations(tiny_seq):
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "mapping.schedule=by_need",
                                     "mapping.need_young=2", "mapping.need_max_gap=2", "mapping.need_loss_factor=1000",
-                                    "mapping.need_gap_iters=1", "mapping.optimizer_state=persistent"])
+                                    "mapping.need_gap_iters=1", "mapping.optimizer_state=persistent"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     try:
         for k in range(6):
@@ -82,7 +82,7 @@ def test_by_need_makes_a_keyframe_every_keyframe_every_frames_whatever_positions
     mapped = {0, 3, 7, 11, 15}  # a loss-triggered call at 3, then a routine refresh every fourth frame
     monkeypatch.setattr(system_mod, "call_iters", lambda k, st, mapping, n: 0 if k in mapped else None)
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=16", "parallel=false",
-                                    "mapping.schedule=by_need", "mapping.keyframe_every=4"])
+                                    "mapping.schedule=by_need", "mapping.keyframe_every=4"], profile="quality")
     s = SLAM(cfg, load_data(cfg))
     try:
         s.run(progress=False)

@@ -62,12 +62,12 @@ def test_an_unknown_data_option_names_the_key_and_the_dataset_kinds_options(tmp_
     from slam.errors import SlamInputError
 
     with pytest.raises(SlamInputError) as e:
-        load_data(load_config("synthetic/walk", ["data.options.sede=11"]))
+        load_data(load_config("synthetic/walk", ["data.options.sede=11"], profile="quality"))
     msg = str(e.value)
     assert "config key 'data.options.sede' is not an option of synthetic data" in msg and "\n" not in msg
     assert "seed" in msg and "crop_edge" in msg and "scene" in msg
     with pytest.raises(SlamInputError, match="'data.options.seed' is not an option of tum data; it takes .*association"):
-        load_data(load_config("tum/fr1_desk", [f"data.path={tmp_path / 'not read'}", "data.options.seed=1"]))
+        load_data(load_config("tum/fr1_desk", [f"data.path={tmp_path / 'not read'}", "data.options.seed=1"], profile="paper"))
 
 
 def test_generator_options_need_the_generated_sequence_and_the_right_type(tiny_seq):
@@ -82,11 +82,11 @@ def test_generator_options_need_the_generated_sequence_and_the_right_type(tiny_s
 
     with pytest.raises(SlamInputError, match=r"'data.options.seed' sets how the synthetic sequence is generated: it "
                                              r"does not apply to a data folder \(data.path = "):
-        load_data(load_config("synthetic", [f"data.path={tiny_seq}", "data.options.seed=11"]))
+        load_data(load_config("synthetic", [f"data.path={tiny_seq}", "data.options.seed=11"], profile="quality"))
     with pytest.raises(SlamInputError, match="'data.options.seed' = 'eleven' must be an integer"):
-        load_data(load_config("synthetic", ["data.options.seed=eleven"]))
+        load_data(load_config("synthetic", ["data.options.seed=eleven"], profile="quality"))
     with pytest.raises(SlamInputError, match="'data.options.depth_noise_sigma' = true must be a number"):
-        load_data(load_config("synthetic", ["data.options.depth_noise_sigma=true"]))
+        load_data(load_config("synthetic", ["data.options.depth_noise_sigma=true"], profile="quality"))
 
 
 def test_a_synthetic_presets_generator_options_make_and_use_that_variant(tmp_path, monkeypatch):
@@ -102,12 +102,12 @@ def test_a_synthetic_presets_generator_options_make_and_use_that_variant(tmp_pat
     monkeypatch.setenv("LRSLAM_CACHE", str(tmp_path))
     small = ["data.options.frames=2", "data.options.height=24", "data.options.width=32",
              "data.options.supersample=1"]
-    a = load_data(load_config("synthetic", [*small, "data.options.seed=11"]))
-    b = load_data(load_config("synthetic", small))
+    a = load_data(load_config("synthetic", [*small, "data.options.seed=11"], profile="quality"))
+    b = load_data(load_config("synthetic", small, profile="quality"))
     assert json.loads((a.root / "synth.json").read_text())["config"]["seed"] == 11
     assert len(a) == 2 and a.intrinsics.height == 24 and a.root != b.root
     assert not torch.equal(torch.as_tensor(a[0].color), torch.as_tensor(b[0].color))  # other textures
     walk = load_data(load_config("synthetic/walk", ["data.max_frames=2", "data.options.seed=11",
-                                                    "data.options.height=24", "data.options.width=32"]))
+                                                    "data.options.height=24", "data.options.width=32"], profile="quality"))
     record = json.loads((walk.root / "synth.json").read_text())["config"]
     assert record["scene"] == "walk" and record["seed"] == 11 and record["frames"] == 2 and record["sensor_holes"]

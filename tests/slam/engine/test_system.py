@@ -16,7 +16,7 @@ def _system(tiny_seq, extra=()):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *extra])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *extra], profile="quality")
     return SLAM(cfg, load_data(cfg))
 
 
@@ -41,7 +41,7 @@ def test_invalid_depth_frame_is_skipped(tiny_seq):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY], profile="quality")
     s = SLAM(cfg, _Holes(load_data(cfg), 4))
     s.run(progress=False)
     assert [e["frame"] for e in s.state.events] == [4]
@@ -232,7 +232,7 @@ def test_end_to_end_run(tiny_seq, tmp_path):
     from slam.cli import main
 
     out = tmp_path / "run"
-    rc = main(["run", "--data", str(tiny_seq), "--out", str(out), "--quiet", "data.max_frames=16",
+    rc = main(["run", "--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), "--quiet", "data.max_frames=16",
                "tracking.pixels=200", "mapping.iters_first=60", "mapping.pixels=400", "meshing.resolution=0.04"])
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())

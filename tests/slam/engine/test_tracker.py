@@ -29,7 +29,7 @@ def test_tracking_after_mapping_sees_the_map_mapping_wrote(tiny_seq, rep, parall
     from slam.engine.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "mapping.every_frame=1",
-                                    f"representation={rep}", f"parallel={parallel}"])
+                                    f"representation={rep}", f"parallel={parallel}"], profile="quality")
     system = SLAM(cfg, load_data(cfg))
     for k in range(4):  # map, then (track, map) three times: every tracking call follows a mapping call
         system.step(k)
@@ -96,7 +96,7 @@ ROOM_CFG = ["tracking.pixels=300", "tracking.ignore_edge=[0,0]", "rendering.n_st
 
 def test_colour_tracking_turns_the_camera_back_to_the_wall_it_sees():
     color, intr = room_image()
-    cfg = load_config("synthetic", ROOM_CFG)
+    cfg = load_config("synthetic", ROOM_CFG, profile="quality")
     start = turned(1.5, -2.0)
     res, before = track_on_color(Room(), color, intr, matrix_to_pose(start), cfg, torch.Generator().manual_seed(0))
     assert res.ok and res.inliers == 1.0  # every ray ends on the wall

@@ -42,7 +42,7 @@ def test_a_lost_stretch_after_a_jump_back_holds_the_pose(tiny_seq, monkeypatch):
     from slam.engine.system import SLAM
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *FAST, "tracking.iters=4", "tracking.init=icp",
-                                        "tracking.relocalize_after=0"])  # the lost stretch stays lost
+                                        "tracking.relocalize_after=0"], profile="quality")  # the lost stretch stays lost
     s = SLAM(cfg, EditedDataset(load_data(cfg)))
     depth_of = {k: s.frames.get(k).depth for k in range(18)}
     real_recover, real_track = slam.engine.tracking.recover, slam.engine.tracking.track_frame
@@ -83,7 +83,7 @@ def test_a_frame_without_depth_is_turned_by_its_colour_only_when_that_is_plausib
     pred = matrix_to_pose(turned(1.5, -2.0))  # the truth is the identity: the camera at the origin facing +z
 
     def track(overrides=(), image=color, last=None):
-        cfg = load_config("synthetic", [*ROOM_CFG, *overrides])
+        cfg = load_config("synthetic", [*ROOM_CFG, *overrides], profile="quality")
         st = RunState(est=[last if last is not None else matrix_to_pose(torch.eye(4))], trusted=[True])
         inp = TrackInput(Room(), image, torch.zeros(image.shape[:2]), intr, cfg, torch.Generator().manual_seed(0),
                          TrackingGuard(cfg.tracking))

@@ -25,7 +25,7 @@ def test_motion_in_metres_and_degrees():
 
 
 def test_each_check_names_its_reason():
-    cfg = load_config("synthetic").tracking
+    cfg = load_config("synthetic", profile="quality").tracking
     g = TrackingGuard(cfg)
     for v in (0.1, 0.12, 0.11):
         g.accept(v)
@@ -35,7 +35,7 @@ def test_each_check_names_its_reason():
     assert "inliers" in g.reasons(0.1, 0.3, I7, I7, dt)[0]
     assert "m/s" in g.reasons(0.1, 0.95, I7, _at(0.2), dt)[0]  # 20 cm in 33 ms = 6 m/s
     assert "deg/s" in g.reasons(0.1, 0.95, I7, _at(0.0, 30.0), dt)[0]  # 900 deg/s
-    off = load_config("synthetic", ["tracking.lost_loss_factor=0", "tracking.max_speed=0"]).tracking
+    off = load_config("synthetic", ["tracking.lost_loss_factor=0", "tracking.max_speed=0"], profile="quality").tracking
     assert TrackingGuard(off).reasons(100.0, 0.95, I7, _at(5.0), dt) == []
 
 
@@ -45,7 +45,7 @@ def _system(tiny_seq, extra=()):
 
     # a map trained enough for tracking to pull a wrong start back (TINY's 5 warm-up iterations are not)
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=8", "mapping.every_frame=1",
-                                    "mapping.iters_first=60", "mapping.iters=5", "tracking.iters=8", *extra])
+                                    "mapping.iters_first=60", "mapping.iters=5", "tracking.iters=8", *extra], profile="quality")
     return SLAM(cfg, load_data(cfg))
 
 

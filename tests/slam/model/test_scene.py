@@ -24,7 +24,7 @@ def test_every_representation_builds_and_renders(rep):
     """Each representation renders, and the rendered depth's gradient reaches exactly the parameters it depends on
     (geometry, at every level, the SDF decoder and beta; never appearance or the colour decoder) with the values
     central differences give."""
-    cfg = load_config("synthetic", [f"representation={rep}", "bound=[[0,1],[0,1],[0,1]]"])
+    cfg = load_config("synthetic", [f"representation={rep}", "bound=[[0,1],[0,1],[0,1]]"], profile="quality")
     torch.manual_seed(0)
     model = SceneModel(cfg, scene_aabb(cfg.scene.bound, 0.24))
     counts = parameter_counts(model)
@@ -60,7 +60,7 @@ def test_every_representation_builds_and_renders(rep):
 def test_tracking_freezes_scene_gradients():
     from tdfields import frozen
 
-    cfg = load_config("synthetic", ["bound=[[0,1],[0,1],[0,1]]"])
+    cfg = load_config("synthetic", ["bound=[[0,1],[0,1],[0,1]]"], profile="quality")
     model = SceneModel(cfg, scene_aabb(cfg.scene.bound, 0.24))
     x = torch.rand(10, 3, requires_grad=True)
     with frozen(model):

@@ -14,7 +14,7 @@ BOUND = "bound=[[-1,1],[-0.5,1],[0,1.5]]"
 
 
 def _scene(representation: str) -> SceneModel:
-    cfg = load_config("synthetic", [BOUND, f"representation={representation}"])
+    cfg = load_config("synthetic", [BOUND, f"representation={representation}"], profile="quality")
     torch.manual_seed(0)
     scene = SceneModel(cfg, scene_aabb(cfg.scene.bound, cfg.scene.bound_dividable))
     with torch.no_grad():  # a map that is not its initialisation: every sample its own value

@@ -13,7 +13,7 @@ def _stopped_run(data, out):
     """A run on ``data`` stopped after frame 2 (its checkpoint at frame 3 of 6)."""
     from slam.cli import main
 
-    assert main(["run", "--data", str(data), "--out", str(out), "--quiet", "--no-mesh", "--stop-after", "3",
+    assert main(["run", "--config", "synthetic", "--profile", "quality", "--data", str(data), "--out", str(out), "--quiet", "--no-mesh", "--stop-after", "3",
                  *TINY]) == 0
 
 

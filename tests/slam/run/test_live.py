@@ -52,7 +52,7 @@ class FakeCamera:
 
 
 def _cfg(*extra):
-    return load_config("synthetic", [*TINY[1:], "parallel=true", "data.realtime=true", *extra])
+    return load_config("synthetic", [*TINY[1:], "parallel=true", "data.realtime=true", *extra], profile="quality")
 
 
 def _rows(path):

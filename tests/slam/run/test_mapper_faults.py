@@ -36,7 +36,7 @@ def _cli(*args, fault: str = "", **kw):
 @pytest.fixture(scope="module")
 def uninterrupted(tiny_seq, tmp_path_factory):
     out = tmp_path_factory.mktemp("straight")
-    proc = _cli("--data", str(tiny_seq), "--out", str(out), *RUN)
+    proc = _cli("--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), *RUN)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err[-2000:]
     return (out / "trajectory.txt").read_text()
@@ -109,6 +109,6 @@ def test_a_mapping_process_stopped_or_failing_twice_resumes_to_the_uninterrupted
     resume gives the uninterrupted run's trajectory byte for byte."""
     out = tmp_path / "run"
     first, second = (4, 10) if how in ("term", "kill") else (6, 12)
-    _stopped(out, ["--data", str(tiny_seq), "--out", str(out), *RUN], how, first)
+    _stopped(out, ["--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), *RUN], how, first)
     _stopped(out, ["--resume", str(out)], how, second)
     _resume_matches(out, uninterrupted)

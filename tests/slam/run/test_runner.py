@@ -57,7 +57,7 @@ def uninterrupted(tiny_seq, tmp_path_factory):
     out = {}
     for mode in ("true",):
         d = tmp_path_factory.mktemp(f"full-{mode}")
-        run_to_folder(load_config("synthetic", [f"data.path={tiny_seq}", *RUN, f"parallel={mode}"]), d,
+        run_to_folder(load_config("synthetic", [f"data.path={tiny_seq}", *RUN, f"parallel={mode}"], profile="quality"), d,
                       progress=False, mesh=False)
         out[mode] = d
     return out
@@ -67,7 +67,7 @@ def uninterrupted(tiny_seq, tmp_path_factory):
 @pytest.mark.parametrize("parallel", ["true"])  # the default mode; both modes are stopped and resumed below
 def test_kill_9_then_resume_gives_the_uninterrupted_trajectory(tiny_seq, tmp_path, uninterrupted, parallel):
     out = tmp_path / "run"
-    proc = subprocess.Popen(_cmd("--data", str(tiny_seq), "--out", str(out), *RUN, f"parallel={parallel}"),
+    proc = subprocess.Popen(_cmd("--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), *RUN, f"parallel={parallel}"),
                             env=_env(), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     nxt = _wait_for_checkpoint(out, 4, proc)
     proc.kill()  # SIGKILL: no handler runs, only the checkpoint on disk survives
@@ -93,7 +93,7 @@ def test_signal_finishes_the_frame_writes_partial_outputs_and_says_how_to_resume
     # all 24 frames: with 10, a fast machine finished the last 8 between the checkpoint's poll and the signal
     # (the run then ends complete, exit 0)
     run = TINY[1:] + ["data.max_frames=24", "checkpoint_every=2"]
-    proc = subprocess.Popen(_cmd("--data", str(tiny_seq), "--out", str(out), *run), env=_env(), cwd=ROOT,
+    proc = subprocess.Popen(_cmd("--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), *run), env=_env(), cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     _wait_for_checkpoint(out, 2, proc)
     proc.send_signal(sig)
@@ -154,7 +154,7 @@ def test_an_interrupt_with_a_mapping_call_pending_resumes_to_the_uninterrupted_r
     from slam.run.runner import RunInterrupted, run_to_folder
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, f"parallel={parallel}",
-                                    f"mapping.optimizer_state={state}"])
+                                    f"mapping.optimizer_state={state}"], profile="quality")
     run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
     for at in (2, 5):
         out = tmp_path / f"stopped-at-{at}"
@@ -182,7 +182,7 @@ def test_carried_map_moments_come_back_with_a_resume(tiny_seq, tmp_path, monkeyp
     from slam.run.runner import RunInterrupted, run_to_folder
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, "parallel=false", "mapping.every_frame=1",
-                                    "mapping.keyframe_every=1", "mapping.optimizer_state=persistent"])
+                                    "mapping.keyframe_every=1", "mapping.optimizer_state=persistent"], profile="quality")
     run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
     out = tmp_path / "stopped"
     with pytest.raises(RunInterrupted):
@@ -219,7 +219,7 @@ def test_a_run_stopped_after_its_box_grew_resumes_to_the_uninterrupted_run(tiny_
     from slam.run.runner import RunInterrupted, run_to_folder
 
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, *GROWING, f"parallel={parallel}",
-                                    f"mapping.optimizer_state={state}"])
+                                    f"mapping.optimizer_state={state}"], profile="quality")
     full = run_to_folder(cfg, tmp_path / "full", progress=False, mesh=False)
     at = next(e["frame"] for e in full["events"] if "growth" in e)  # stride 1: frame index = position
     out = tmp_path / "stopped"
@@ -246,7 +246,7 @@ def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, caps
     from slam.cli import main
 
     out = tmp_path / "run"
-    base = ["run", "--data", str(tiny_seq), "--out", str(out), "--quiet", "--no-mesh", *INPROC, "checkpoint_every=2"]
+    base = ["run", "--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), "--quiet", "--no-mesh", *INPROC, "checkpoint_every=2"]
     assert main([*base, "--stop-after", "5"]) == 0
     assert "Resume with: lrslam run --resume" in capsys.readouterr().err
     ckpt, prev = out / "checkpoint.pt", previous_path(out / "checkpoint.pt")
@@ -276,7 +276,7 @@ def test_stop_after_and_a_damaged_or_foreign_checkpoint(tiny_seq, tmp_path, caps
     # first checkpoint: the checkpoint on disk is the old run's
     from slam.config import load_config, save_config
 
-    save_config(load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, "tracking.iters=4"]), out / "config.yaml")
+    save_config(load_config("synthetic", [f"data.path={tiny_seq}", *INPROC, "tracking.iters=4"], profile="quality"), out / "config.yaml")
     (out / "metrics.json").write_text('{"partial": true}')
     assert main(["run", "--resume", str(out), "--quiet", "--no-mesh"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -292,7 +292,7 @@ def test_a_checkpoint_of_an_earlier_version_resumes(tiny_seq, tmp_path, caplog):
     from slam.cli import main
 
     out = tmp_path / "old"
-    assert main(["run", "--data", str(tiny_seq), "--out", str(out), "--quiet", "--no-mesh", *INPROC,
+    assert main(["run", "--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), "--quiet", "--no-mesh", *INPROC,
                  "--stop-after", "5"]) == 0
     ckpt = out / "checkpoint.pt"
     payload = torch.load(ckpt, weights_only=True)
@@ -319,7 +319,7 @@ def test_checkpoint_roundtrip_restores_every_piece_of_state(tiny_seq):
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *RUN])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *RUN], profile="quality")
     a = SLAM(cfg, load_data(cfg))
     for k in range(5):
         a.step(k)
@@ -348,7 +348,7 @@ def test_a_full_disk_mid_run_stops_with_one_line_and_loses_nothing(tiny_seq, tmp
     from slam.run.checkpoint import load_run
     from slam.cli import main
 
-    args = ["--data", str(tiny_seq), "--quiet", "--no-mesh", *INPROC, "checkpoint_every=2"]
+    args = ["--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--quiet", "--no-mesh", *INPROC, "checkpoint_every=2"]
     assert main(["run", "--out", str(tmp_path / "full"), *args]) == 0
     real, written = slam.files.fsync_file, []
 
@@ -377,7 +377,7 @@ def test_a_second_ctrl_c_stops_at_once_during_a_long_mapping_call(tiny_seq, tmp_
     """The first Ctrl-C waits for the mapping call in progress (its checkpoint needs it); the second one ends that
     call at its next iteration and exits 130 without waiting for it (a warm-up of 100000 iterations here)."""
     out = tmp_path / "run"
-    proc = subprocess.Popen(_cmd("--data", str(tiny_seq), "--out", str(out), *RUN, "parallel=true",
+    proc = subprocess.Popen(_cmd("--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), *RUN, "parallel=true",
                                  "mapping.iters_first=100000"), env=_env(), cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
     t0 = time.time()

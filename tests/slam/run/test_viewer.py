@@ -47,7 +47,7 @@ def test_recording_of_a_short_run(tiny_seq, tmp_path):
     from slam.run.viewer import RerunObserver
 
     # sequential: the preview meshes follow keyframes as they are added, which a parallel mapper does later
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *CHEAP_MESH, "parallel=false"])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *CHEAP_MESH, "parallel=false"], profile="quality")
     rrd = tmp_path / "rec" / "run.rrd"
     rrd.parent.mkdir()
     previews = tmp_path / "rec" / "previews.rrd"
@@ -178,7 +178,7 @@ def test_resumed_run_continues_the_trajectories(tiny_seq, tmp_path):
             if record.k == 2:
                 os.kill(os.getpid(), signal.SIGINT)
 
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY])
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY], profile="quality")
     with pytest.raises(RunInterrupted):
         run_to_folder(cfg, tmp_path / "run", progress=False, mesh=False, observers=[Interrupt()])
     rrd = tmp_path / "resumed.rrd"

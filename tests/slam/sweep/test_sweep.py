@@ -14,7 +14,7 @@ from slam.sweep import (RunSpec, SerialEngine, cpus_for, execute, failed_record,
                         summary_markdown)
 
 # 4 frames, a few iterations: every stage of a run, in a few seconds
-SWEEP_TINY = ["data.max_frames=4", "tracking.iters=2", "tracking.pixels=100", "mapping.iters=2",
+SWEEP_TINY = ["profile=quality", "data.max_frames=4", "tracking.iters=2", "tracking.pixels=100", "mapping.iters=2",
               "mapping.iters_first=3", "mapping.pixels=200", "rendering.n_stratified=8", "rendering.n_importance=4"]
 
 
@@ -343,7 +343,7 @@ def test_a_finished_run_of_an_older_version_is_reused_when_only_keys_added_since
     from slam.sweep.runs import _check_same_config
 
     spec = RunSpec("synthetic", None, "synthetic", "lrslam", 0, ("tracking.iters=2",), str(tmp_path))
-    planned = load_config("synthetic", list(spec.config_overrides())).to_dict()
+    planned = load_config("synthetic", list(spec.config_overrides()), profile="quality").to_dict()
     old = yaml.safe_load(yaml.safe_dump(planned))
     del old["data"]["realtime"]
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(old))
