@@ -84,6 +84,10 @@ class SceneConfig:
     grow: Any = choice("auto", ("auto", True, False))
     grow_margin: float = num(0.3, lo=0, hi=1000.0)  # metres between a frame's depth and the box that grow it
     grow_max_extent: float = num(20.0, **METRES)  # metres per axis the box never grows past (an event says so)
+    # ours: which depth grows the box. depth: every reading; box: only readings within the automatic box's radius
+    # (its half-size at the start) of the camera, so a camera turning in place, whose far walls the first frames'
+    # box left out on purpose, does not grow it, and one that moves does (a given box: every reading)
+    grow_reach: str = choice("depth", ("depth", "box"))
     truncation: float = num(0.06, **METRES)
     learnable_beta: bool = True
     beta_init: float = num(10.0, **POSITIVE)

@@ -4,7 +4,9 @@
 (``SLAM._submit``), so both loop modes decide at the same frame. The frame's valid depth is back-projected with its
 tracked pose (every ``s``-th pixel of every ``s``-th row, at most about 4k points: 1-2 ms on a CPU core) and
 summarised per axis by its ``1 - q`` and ``q`` quantiles, ``q`` = ``scene.bound_auto_percentile`` / 100 (the share
-of a frame's depth the automatic box counts, so a few stray far readings do not grow the box). A side whose quantile
+of a frame's depth the automatic box counts, so a few stray far readings do not grow the box); with
+``scene.grow_reach: box`` only the readings within the automatic box's starting half-size of the camera count (a
+camera turning in place does not grow the box its first frames sized; one that moves does). A side whose quantile
 comes within ``scene.grow_margin`` metres of the box (or passes it) grows by the whole coarse cells (the largest
 ``geometry.cell_sizes``) that put it ``grow_margin`` inside again. No axis grows past ``scene.grow_max_extent``
 metres: a growth that would is cut to what fits, and an event says so (once per side).
@@ -43,9 +45,11 @@ def grow_box(box, step: GrowthStep) -> list[list[float]]:
     return [[float(lo) - step.lower[a], float(hi) + step.upper[a]] for a, (lo, hi) in enumerate(box)]
 
 
-def depth_reach(depth: torch.Tensor, pose: torch.Tensor, intr, q: float) -> torch.Tensor | None:
+def depth_reach(depth: torch.Tensor, pose: torch.Tensor, intr, q: float,
+                radius: float | None = None) -> torch.Tensor | None:
     """``[2, 3]`` float64: the ``1 - q`` and ``q`` quantiles per axis of a frame's valid depth ``[H, W]`` (metres)
-    back-projected with its camera-to-world ``pose`` ``[7]`` (world metres); None without valid depth."""
+    back-projected with its camera-to-world ``pose`` ``[7]`` (world metres), counting only points within ``radius``
+    metres of the camera when given; None without such depth."""
     h, w = depth.shape
     s = max(1, math.ceil(math.sqrt(h * w / MAX_POINTS)))
     z = depth[::s, ::s].float()
@@ -53,6 +57,10 @@ def depth_reach(depth: torch.Tensor, pose: torch.Tensor, intr, q: float) -> torc
     if not len(v):
         return None
     pts = backproject((u * s).float(), (v * s).float(), z[v, u], intr.fx, intr.fy, intr.cx, intr.cy)
+    if radius is not None:
+        pts = pts[pts.norm(dim=1) <= radius]
+        if not len(pts):
+            return None
     T = pose_to_matrix(pose.detach().float().cpu()).to(pts.device)
     world = pts @ T[:3, :3].T + T[:3, 3]
     return torch.quantile(world, torch.tensor([1 - q, q], device=world.device), dim=0).double().cpu()
@@ -65,13 +73,16 @@ class SceneGrowth:
         cfg: the run's config (``scene.grow*``, ``scene.bound``, ``scene.bound_auto_percentile``,
             ``geometry.cell_sizes``).
         event: ``event(k, what, **extra)``, the loop's event log.
+        radius: metres, the automatic box's half-size at the start (None for a given box): with
+            ``scene.grow_reach: box`` only depth within it of the camera counts.
     """
 
-    def __init__(self, cfg, event):
+    def __init__(self, cfg, event, radius: float | None = None):
         sc = cfg.scene
         self.enabled = sc.grow is True or (sc.grow == "auto" and sc.bound == "auto")
         self.margin, self.max_extent = float(sc.grow_margin), float(sc.grow_max_extent)
         self.q = float(sc.bound_auto_percentile) / 100.0
+        self.radius = radius if sc.grow_reach == "box" else None
         self.cell = float(max(cfg.geometry.cell_sizes))
         self.event = event
         self.capped: set[str] = set()  # sides whose growth the cap has cut (the event is logged once)
@@ -81,7 +92,7 @@ class SceneGrowth:
         None (growth off, or the depth is well inside)."""
         if not self.enabled:
             return None
-        reach = depth_reach(depth, pose, intr, self.q)
+        reach = depth_reach(depth, pose, intr, self.q, self.radius)
         if reach is None:
             return None
         box = aabb.detach().cpu().double()

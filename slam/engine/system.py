@@ -104,7 +104,8 @@ class SLAM:
         self.guard = TrackingGuard(cfg.tracking)
         self.timeline = Timeline(dt=self._dt, keyframes=self._keyframes_when_idle,
                                  frame_of=lambda j: int(self.indices[j]), event=self._event)
-        self.growth = SceneGrowth(cfg, self._event)
+        auto = cfg.scene.bound == "auto"  # a cube around the first camera: its half-size is the reach it was sized to
+        self.growth = SceneGrowth(cfg, self._event, radius=(self.bound[0][1] - self.bound[0][0]) / 2 if auto else None)
 
     # ----------------------------------------------------------------------------------------------- helpers
     def _event(self, k: int, what: str, **extra) -> None:

@@ -16,11 +16,12 @@ from slam.model.growth import pad_state
 from tests.slam.conftest import GROWING, TINY
 
 
-def _decide(extra=(), depth=2.0, box=((-3.0, 3.0), (-3.0, 3.0), (-1.0, 2.1))):
+def _decide(extra=(), depth=2.0, box=((-3.0, 3.0), (-3.0, 3.0), (-1.0, 2.1)), radius=None):
     """What SceneGrowth decides for a flat wall ``depth`` metres ahead of a camera at the origin looking along +z
     (points x in +-1.6, y in +-1.2, z = depth), and the events it logged."""
     events = []
-    g = SceneGrowth(load_config("synthetic", list(extra), profile="quality"), lambda k, what, **kw: events.append((k, what, kw)))
+    g = SceneGrowth(load_config("synthetic", list(extra), profile="quality"),
+                    lambda k, what, **kw: events.append((k, what, kw)), radius=radius)
     intr = Intrinsics(fx=50.0, fy=50.0, cx=39.5, cy=29.5, height=60, width=80)
     step = g.decide(3, torch.full((60, 80), depth), matrix_to_pose(torch.eye(4)), intr, torch.tensor(box))
     return g, step, events
@@ -35,6 +36,16 @@ def test_growth_triggers_where_the_depth_nears_the_box():
     assert _decide()[1] is None  # grow: auto keeps a given box (the synthetic preset's)
     assert _decide(["scene.grow=false", "bound=auto"])[1] is None
     assert SceneGrowth(load_config("synthetic", ["bound=auto"], profile="quality"), None).enabled
+
+
+def test_with_grow_reach_box_only_depth_within_the_automatic_boxs_radius_grows_it():
+    """The wall is 2.0-2.9 m from the camera (2 m ahead, up to 1.6 m aside): beyond a 1.9 m radius nothing counts,
+    within 3 m all of it; grow_reach: depth (the default) counts it whatever the radius."""
+    box = ["scene.grow=true", "scene.grow_reach=box"]
+    assert _decide(box, radius=1.9)[1] is None
+    assert _decide(box, radius=3.0)[1].cells == {"z+": 1}
+    assert _decide(["scene.grow=true"], radius=1.9)[1].cells == {"z+": 1}
+    assert _decide(box)[1].cells == {"z+": 1}  # a given box has no radius: every reading counts
 
 
 def test_the_cap_stops_growth_with_one_event_per_side():
@@ -110,3 +121,20 @@ def test_with_growth_the_tracker_reads_the_maps_the_schedule_names_and_a_run_rep
     again, _, _, _ = _run(tiny_seq, monkeypatch, parallel)
     assert torch.equal(torch.stack(s.state.est), torch.stack(again.state.est))
     assert again.state.events == s.state.events and _digest(again.scene.state_dict()) == _digest(s.scene.state_dict())
+
+
+def test_the_run_gives_its_growth_the_automatic_boxs_starting_half_size(tiny_seq):
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+
+    for bound, expect in (("auto", lambda s: (s.bound[0][1] - s.bound[0][0]) / 2), (None, lambda s: None)):
+        over = [f"data.path={tiny_seq}", "data.max_frames=2", "parallel=false", "scene.grow=true",
+                "scene.grow_reach=box", *([f"bound={bound}"] if bound else [])]
+        cfg = load_config("synthetic", over, profile="quality")
+        s = SLAM(cfg, load_data(cfg))
+        try:
+            assert s.growth.radius == expect(s) and (s.growth.radius is None) == (bound is None)
+            if bound:
+                assert 0.5 < s.growth.radius < 5.0
+        finally:
+            s.close()

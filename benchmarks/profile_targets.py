@@ -1,0 +1,150 @@
+"""The real-time default against the careful budget: frame time and ATE over seeds, per sequence, interleaved.
+
+For each sequence, every seed runs the ``default`` variant (``lrslam run --data DIR``: the detected preset at the
+device's default profile, realtime on the CPU) from ``--after`` and the references from ``--before`` (a checkout of
+20b7b9c): ``quality``, tum/fr1_rpy-cpu's budget (which the quality profile reproduces), and on the synthetic
+sequences also ``own``, their own careful preset, in turn, each in a fresh process with
+one torch thread. The table gives per sequence the median frame time of each and their ratio, the median start-up
+(kernel loads, the mapping process: ``preload_s``, not in the frame time), ATE mean ± std over the seeds (per-seed
+values in the JSON), and frames lost.
+
+Usage::
+
+    git worktree add /tmp/w20 20b7b9c && git worktree add /tmp/after HEAD
+    python benchmarks/profile_targets.py --before /tmp/w20 --after /tmp/after --seeds 5 \\
+        --out benchmarks/results/profile_targets
+
+Sequences (``--sequences``): ``gentle`` and ``fast`` (the fr1_rpy windows in ``../shared/data``), ``dev_range``
+(both windows as one folder, pairs 0-224, linked into ``--out``), ``room`` (the bundled synthetic room), ``walk300``
+(the synthetic walk's first 300 frames). Writes ``profile_targets.json`` and ``profile_targets.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from before_after import absolute_paths, run_variant  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("LRSLAM_SHARED_DATA", ROOT.parent / "shared" / "data"))
+WINDOWS = ("tum_fr1_rpy_0_124", "tum_fr1_rpy")
+
+
+def merge_tum_windows(folders: list[Path], dest: Path) -> Path:
+    """One TUM folder of several windows of a sequence (images linked, lists merged in time order)."""
+    for sub in ("rgb", "depth"):
+        (dest / sub).mkdir(parents=True, exist_ok=True)
+        for f in folders:
+            for img in (f / sub).glob("*.png"):
+                link = dest / sub / img.name
+                if not link.exists():
+                    link.symlink_to(img.resolve())
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+        rows = sorted({line for f in folders for line in (f / name).read_text().splitlines()
+                       if line.strip() and not line.startswith("#")}, key=lambda r: float(r.split()[0]))
+        (dest / name).write_text("".join(f"{r}\n" for r in rows))
+    return dest
+
+
+#: tum/fr1_rpy-cpu's budget where it differs from the synthetic presets' own (20b7b9c)
+TUM_CPU_BUDGET = ["tracking.iters=20", "tracking.lr_t=0.01", "tracking.lr_r=0.002", "mapping.every_frame=1",
+                  "mapping.keyframe_every=1", "mapping.iters=10", "mapping.iters_first=60"]
+
+
+def sequences(out: Path) -> dict[str, tuple[list[str], dict[str, list[str]]]]:
+    """name -> (arguments of the default run, {reference: arguments of a careful 20b7b9c run}). The reference
+    ``quality`` is tum/fr1_rpy-cpu's budget everywhere; the synthetic sequences also have ``own``, their own
+    careful preset (mapping every 4th frame)."""
+    gentle, fast = SHARED / WINDOWS[1], SHARED / WINDOWS[0]
+    dev = out / "data" / "tum_fr1_rpy_0_224"
+    tum = lambda d: ([f"--data={d}"], {"quality": ["--config", "tum/fr1_rpy-cpu", f"--data={d}"]})  # noqa: E731
+    walk = ["--config", "synthetic/walk", "data.max_frames=300"]
+    return {"gentle": tum(gentle), "fast": tum(fast), "dev_range": tum(dev),
+            "room": ([], {"quality": ["--config", "synthetic", *TUM_CPU_BUDGET], "own": ["--config", "synthetic"]}),
+            "walk300": (walk, {"quality": [*walk, *TUM_CPU_BUDGET], "own": walk})}
+
+
+def summary(runs: list[dict]) -> dict:
+    ok = [r for r in runs if "error" not in r]
+    if not ok:
+        return {"errors": [r["error"] for r in runs]}
+    ates = [r["ate_rmse_cm"] for r in ok]
+    return {"fpt_s": statistics.median(r["fpt_s"] for r in ok), "preload_s": statistics.median(r["preload_s"] for r in ok),
+            "wall_s": statistics.median(r["wall_s"] for r in ok), "ate_cm_mean": statistics.mean(ates),
+            "ate_cm_std": statistics.stdev(ates) if len(ates) > 1 else 0.0, "ate_cm": ates,
+            "frames_lost": [r["frames_lost"] for r in ok], "failed": len(runs) - len(ok)}
+
+
+def table(result: dict) -> str:
+    s = result["stamp"]
+    lines = [f"Measured {s['date']} on {s['cpu']} (2 cores), {result['seeds']} seeds, one torch thread per process, "
+             "`python benchmarks/profile_targets.py`.", "",
+             "| sequence | frames | default s/frame | quality (20b7b9c) s/frame | ratio | default start-up s "
+             "| default ATE cm | quality ATE cm | frames lost |", "|---|---|---|---|---|---|---|---|---|"]
+    for name, row in result["sequences"].items():
+        d = row["default"]
+        for ref, q in row["references"].items():
+            label = name if ref == "quality" else f"{name} (against its own preset)"
+            if "fpt_s" not in d or "fpt_s" not in q:
+                lines.append(f"| {label} | failed: {d.get('errors') or q.get('errors')} |||||||")
+                continue
+            lines.append(f"| {label} | {row['frames']} | {d['fpt_s']:.3f} ({1 / d['fpt_s']:.1f}/s) | {q['fpt_s']:.3f} | "
+                         f"{d['fpt_s'] / q['fpt_s']:.2f} | {d['preload_s']:.1f} | {d['ate_cm_mean']:.2f} ± "
+                         f"{d['ate_cm_std']:.2f} | {q['ate_cm_mean']:.2f} ± {q['ate_cm_std']:.2f} | "
+                         f"{max(d['frames_lost'])} / {max(q['frames_lost'])} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--before", required=True, help="a checkout of 20b7b9c (git worktree add /tmp/w20 20b7b9c)")
+    ap.add_argument("--after", default=str(ROOT), help="the checkout measured (default: this one)")
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--sequences", nargs="+", default=["gentle", "fast", "dev_range", "room", "walk300"])
+    ap.add_argument("--set", nargs="*", default=[], help="key=value overrides for both variants (toy runs)")
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args(argv)
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    if "dev_range" in args.sequences:
+        merge_tum_windows([SHARED / w for w in WINDOWS], out / "data" / "tum_fr1_rpy_0_224")
+    seqs = sequences(out)
+    unknown = sorted(set(args.sequences) - set(seqs))
+    if unknown or args.seeds < 1:
+        raise SystemExit(f"profile_targets: error: unknown sequences {unknown} or --seeds < 1")
+    sys.path.insert(0, str(ROOT))
+    from _stamp import stamp
+
+    result = {"stamp": stamp(), "command": " ".join(sys.argv), "seeds": args.seeds, "sequences": {}}
+    for name in args.sequences:
+        default_args, references = seqs[name]
+        variants = [("default", args.after, default_args), *((ref, args.before, a) for ref, a in references.items())]
+        runs = {variant: [] for variant, _, _ in variants}
+        for seed in range(args.seeds):
+            for variant, checkout, extra in variants:
+                v = {"name": f"{name}-{variant}-s{seed}", "checkout": str(Path(checkout).resolve()),
+                     "args": absolute_paths(["--no-mesh", *extra, f"seed={seed}", *args.set])}
+                rec = run_variant(v, out, 0)
+                if "error" not in rec:
+                    m = json.loads((out / "runs" / f"{v['name']}-r0" / "metrics.json").read_text())
+                    rec.update(preload_s=m.get("preload_s") or 0.0, frames_lost=m.get("frames_lost", 0), seed=seed)
+                runs[variant].append(rec)
+        frames = next((r["num_frames"] for r in runs["default"] if "num_frames" in r), None)
+        result["sequences"][name] = {"frames": frames, "args": {"default": default_args, **references},
+                                     "default": summary(runs["default"]),
+                                     "references": {ref: summary(runs[ref]) for ref in references}, "runs": runs}
+        (out / "profile_targets.json").write_text(json.dumps(result, indent=1) + "\n")
+    text = table(result)
+    (out / "profile_targets.md").write_text(text + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,23 @@
+"""benchmarks/profile_targets.py at toy size: the default and the references on the room, per seed, and the table."""
+
+import json
+
+from tests.benchmarks.conftest import script_on_path
+from tests.slam.conftest import TINY
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[2]
+
+
+def test_it_runs_the_default_and_each_reference_per_seed_and_tables_them(tmp_path):
+    with script_on_path("profile_targets") as bench:
+        assert bench.main(["--before", str(ROOT), "--after", str(ROOT), "--seeds", "1", "--sequences", "room",
+                           "--out", str(tmp_path), "--set", *TINY, "data.max_frames=4"]) == 0
+    doc = json.loads((tmp_path / "profile_targets.json").read_text())
+    room = doc["sequences"]["room"]
+    assert room["frames"] == 4 and set(room["references"]) == {"quality", "own"}
+    for summary in (room["default"], *room["references"].values()):
+        assert summary["failed"] == 0 and summary["fpt_s"] > 0 and len(summary["ate_cm"]) == 1
+    cfg = (tmp_path / "runs" / "room-default-s0-r0" / "config.yaml").read_text()
+    assert "profile: realtime" in cfg and "mapping.every_frame=1" in " ".join(room["args"]["quality"])
+    table = (tmp_path / "profile_targets.md").read_text()
+    assert "| room | 4 |" in table and "| room (against its own preset) | 4 |" in table
