@@ -21,3 +21,6 @@ def test_it_runs_the_default_and_each_reference_per_seed_and_tables_them(tmp_pat
     assert "profile: realtime" in cfg and "mapping.every_frame=1" in " ".join(room["args"]["quality"])
     table = (tmp_path / "profile_targets.md").read_text()
     assert "| room | 4 |" in table and "| room (against its own preset) | 4 |" in table
+    with script_on_path("profile_targets") as bench:  # the table again from the JSON
+        assert bench.main(["--before", str(ROOT), "--out", str(tmp_path), "--table-only"]) == 0
+    assert (tmp_path / "profile_targets.md").read_text() == table

@@ -46,3 +46,37 @@ def test_a_resume_may_name_another_keyframe_spill_dir(tiny_seq, tmp_path):
     old.rmdir()
     assert main(["run", "--resume", str(out), "--quiet", "--no-mesh", f"mapping.keyframe_spill_dir={new}"]) == 0
     assert read_yaml(out / "config.yaml", "run config")["mapping"]["keyframe_spill_dir"] == str(old)
+
+
+def test_data_alone_detects_the_preset_and_runs_the_devices_default_profile(tiny_seq, tmp_path, capsys):
+    """``lrslam run --data DIR``: the kind detected (the tiny room is a Replica folder), its camera read from it, the
+    box sized from its first frames, the realtime profile on the CPU; --profile and --config choose otherwise."""
+    import yaml
+
+    from slam.cli import main
+
+    out = tmp_path / "run"
+    assert main(["run", "--data", str(tiny_seq), "--no-mesh", "--out", str(out), *TINY, "parallel=false"]) == 0
+    err = capsys.readouterr().err
+    assert f"lrslam run: {tiny_seq}: replica data, profile realtime (choose with --config, --profile)" in err
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    assert (cfg["name"], cfg["profile"], cfg["data"]["kind"], cfg["scene"]["bound"]) == ("replica", "realtime",
+                                                                                       "replica", "auto")
+    assert cfg["tracking"]["optimizer"] == "gauss_newton" and cfg["scene"]["grow_reach"] == "box"
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["num_frames"] == 6 and metrics["ate_rmse_m"] < 0.05
+
+
+def test_the_preset_of_a_data_folder_is_its_detected_kind(tiny_seq, tmp_path, shared_data):
+    import pytest
+
+    from slam.commands.run import data_preset
+    from slam.errors import SlamInputError
+
+    assert data_preset(str(tiny_seq)) == "replica"
+    assert data_preset(str(shared_data / "tum_fr1_rpy")) == "tum"
+    (tmp_path / "notes.txt").write_text("not a dataset")
+    with pytest.raises(SlamInputError, match="not a recognised dataset layout"):
+        data_preset(str(tmp_path))
+    with pytest.raises(SlamInputError, match="not found"):
+        data_preset(str(tmp_path / "missing"))
