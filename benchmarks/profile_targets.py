@@ -14,7 +14,9 @@ Usage::
     python benchmarks/profile_targets.py --before /tmp/w20 --after /tmp/after --seeds 5 \\
         --out benchmarks/results/profile_targets
 
-Sequences (``--sequences``): ``gentle`` and ``fast`` (the fr1_rpy windows in ``../shared/data``), ``dev_range``
+``--table-only`` rewrites the table from the JSON. The column "default - quality" is the mean of the per-seed
+differences with the half-width of their 95 % t interval: an interval that holds 0 means the seeds do not resolve
+a difference. Sequences (``--sequences``): ``gentle`` and ``fast`` (the fr1_rpy windows in ``../shared/data``), ``dev_range``
 (both windows as one folder, pairs 0-224, linked into ``--out``), ``room`` (the bundled synthetic room), ``walk300``
 (the synthetic walk's first 300 frames). Writes ``profile_targets.json`` and ``profile_targets.md``.
 """
@@ -81,23 +83,37 @@ def summary(runs: list[dict]) -> dict:
             "frames_lost": [r["frames_lost"] for r in ok], "failed": len(runs) - len(ok)}
 
 
+def paired(result_row: dict, ref: str) -> str:
+    """Default minus reference ATE over the seeds both finished: mean ± the 95 % interval's half-width (t)."""
+    runs = result_row["runs"]
+    ref_by_seed = {r["seed"]: r["ate_rmse_cm"] for r in runs[ref] if "error" not in r}
+    diffs = [r["ate_rmse_cm"] - ref_by_seed[r["seed"]] for r in runs["default"]
+             if "error" not in r and r["seed"] in ref_by_seed]
+    if len(diffs) < 2:
+        return "-"
+    t95 = {2: 12.71, 3: 4.30, 4: 3.18, 5: 2.78, 6: 2.57, 7: 2.45, 8: 2.36, 9: 2.31, 10: 2.26}.get(len(diffs), 2.0)
+    half = t95 * statistics.stdev(diffs) / len(diffs) ** 0.5
+    return f"{statistics.mean(diffs):+.2f} ± {half:.2f}"
+
+
 def table(result: dict) -> str:
     s = result["stamp"]
     lines = [f"Measured {s['date']} on {s['cpu']} (2 cores), {result['seeds']} seeds, one torch thread per process, "
              "`python benchmarks/profile_targets.py`.", "",
              "| sequence | frames | default s/frame | quality (20b7b9c) s/frame | ratio | default start-up s "
-             "| default ATE cm | quality ATE cm | frames lost |", "|---|---|---|---|---|---|---|---|---|"]
+             "| default ATE cm | quality ATE cm | default - quality, 95 % | frames lost |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, row in result["sequences"].items():
         d = row["default"]
         for ref, q in row["references"].items():
             label = name if ref == "quality" else f"{name} (against its own preset)"
             if "fpt_s" not in d or "fpt_s" not in q:
-                lines.append(f"| {label} | failed: {d.get('errors') or q.get('errors')} |||||||")
+                lines.append(f"| {label} | failed: {d.get('errors') or q.get('errors')} ||||||||")
                 continue
             lines.append(f"| {label} | {row['frames']} | {d['fpt_s']:.3f} ({1 / d['fpt_s']:.1f}/s) | {q['fpt_s']:.3f} | "
                          f"{d['fpt_s'] / q['fpt_s']:.2f} | {d['preload_s']:.1f} | {d['ate_cm_mean']:.2f} ± "
                          f"{d['ate_cm_std']:.2f} | {q['ate_cm_mean']:.2f} ± {q['ate_cm_std']:.2f} | "
-                         f"{max(d['frames_lost'])} / {max(q['frames_lost'])} |")
+                         f"{paired(row, ref)} | {max(d['frames_lost'])} / {max(q['frames_lost'])} |")
     return "\n".join(lines)
 
 
@@ -109,8 +125,14 @@ def main(argv=None) -> int:
     ap.add_argument("--sequences", nargs="+", default=["gentle", "fast", "dev_range", "room", "walk300"])
     ap.add_argument("--set", nargs="*", default=[], help="key=value overrides for both variants (toy runs)")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--table-only", action="store_true", help="rewrite the table from OUT/profile_targets.json")
     args = ap.parse_args(argv)
     out = Path(args.out).resolve()
+    if args.table_only:
+        text = table(json.loads((out / "profile_targets.json").read_text()))
+        (out / "profile_targets.md").write_text(text + "\n")
+        print(text)
+        return 0
     out.mkdir(parents=True, exist_ok=True)
     if "dev_range" in args.sequences:
         merge_tum_windows([SHARED / w for w in WINDOWS], out / "data" / "tum_fr1_rpy_0_224")
