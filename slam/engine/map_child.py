@@ -55,7 +55,7 @@ def serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
                 reply = ("ready", None)
             elif kind == "grow":
                 apply_growth(scene, body)
-                moments.grow(body)
+                moments.reset()
                 reply = ("grown", None)
             elif kind == "moments":  # asked for by a checkpoint, after the calls sent before it
                 state = moments.cpu_state()

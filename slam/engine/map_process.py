@@ -16,7 +16,7 @@ keeps in step:
   stores hold the same keyframes with the same poses, and its own map becomes the child's. The carried moments
   (twice the map's size) stay in the child until a checkpoint asks for them (:meth:`MapProcess.moments`);
 * a growth of the map's box is sent between calls and applied to the replica by the same samples (the carried
-  moments padded like the map on both sides).
+  moments reset on both sides).
 
 The results are the thread mode's, bit for bit (same code, same inputs, same order; tested), so everything the
 schedule promises holds. Messages are pickled by value over a pipe (no shared-memory handles to leak on long runs;

@@ -218,7 +218,7 @@ class MapWorker:
         self.wait_idle()
         pads = plan_growth(self.scene, lower, upper)
         apply_growth(self.scene, pads)
-        self.moments.grow(pads)  # padded like the factors: the next call goes on with them
+        self.moments.reset()  # moments of the old factors' shapes: the next call starts a fresh Adam
         if self.process is not None and self.process.started:
             self.process.grow(pads)
         if self.parallel:

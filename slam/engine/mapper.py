@@ -29,7 +29,6 @@ from slam.core.optim import adam
 from slam.core.camera import sample_pixels
 from slam.core.pose import normalize_pose, pose_to_matrix
 from slam.core.rendering import render_pixels
-from tdfields.resize import pad_factor
 
 
 @dataclass
@@ -105,27 +104,13 @@ class MapMoments:
         self.state = state
 
     def reset(self) -> None:
-        """Forget the moments: the next call starts a fresh Adam."""
+        """Forget the moments (a grown map's factors have other shapes): the next call starts a fresh Adam."""
         self.state = None
-
-    def grow(self, pads) -> None:
-        """Grow the moments as ``pads`` (:class:`slam.model.growth.ScenePads`) grows the map: each factor's
-        ``exp_avg`` and ``exp_avg_sq`` padded like the factor (the border sample copied, as :func:`tdfields.grow`
-        pads an optimizer's state), ``step`` kept. A fresh Adam after a growth would take full-rate steps in every
-        sample of the map, not only the new ones."""
-        for name, pad in pads.levels.items():
-            for factor, axes in pad.axes.items():
-                key = f"{name}.factors.{factor}"
-                if self.state is not None and key in self.state:
-                    st = dict(self.state[key])
-                    for part in ("exp_avg", "exp_avg_sq"):
-                        st[part] = pad_factor(st[part], axes, pad.lower, pad.upper)
-                    self.state[key] = st
 
     def check(self, scene) -> None:
         """Raise RuntimeError unless every moment belongs to a parameter of ``scene`` and has its shape (checked when
-        a checkpoint is loaded and before a call loads them: a growth pads them with the map, so they fit the map
-        they were kept for)."""
+        a checkpoint is loaded and before a call loads them: a grown map resets them, so they fit the map they were
+        kept for)."""
         params = dict(scene.named_parameters())
         for name, st in (self.state or {}).items():
             if name not in params:
@@ -133,7 +118,7 @@ class MapMoments:
             for part in ("exp_avg", "exp_avg_sq"):
                 if tuple(st[part].shape) != tuple(params[name].shape):
                     raise RuntimeError(f"carried Adam moments of {name} ({part}) have shape {tuple(st[part].shape)}, "
-                                       f"the parameter {tuple(params[name].shape)} (a grown map must pad them)")
+                                       f"the parameter {tuple(params[name].shape)} (a grown map must reset them)")
 
     def cpu_state(self) -> dict | None:
         """``state`` with its tensors on the CPU (a checkpoint resumes on any device; the pipe to a mapper process
