@@ -39,7 +39,8 @@ WINDOWS = ("tum_fr1_rpy_0_124", "tum_fr1_rpy")
 
 
 def merge_tum_windows(folders: list[Path], dest: Path) -> Path:
-    """One TUM folder of several windows of a sequence (images linked, lists merged in time order)."""
+    """One TUM folder of several windows of a sequence (images linked, lists merged in time order; their
+    associations too when each window has them, so the folder holds every pair the windows hold)."""
     for sub in ("rgb", "depth"):
         (dest / sub).mkdir(parents=True, exist_ok=True)
         for f in folders:
@@ -47,7 +48,10 @@ def merge_tum_windows(folders: list[Path], dest: Path) -> Path:
                 link = dest / sub / img.name
                 if not link.exists():
                     link.symlink_to(img.resolve())
-    for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+    lists = ["rgb.txt", "depth.txt", "groundtruth.txt"]
+    if all((f / "associations.txt").is_file() for f in folders):  # the windows' own pairs, every one of them
+        lists.append("associations.txt")
+    for name in lists:
         rows = sorted({line for f in folders for line in (f / name).read_text().splitlines()
                        if line.strip() and not line.startswith("#")}, key=lambda r: float(r.split()[0]))
         (dest / name).write_text("".join(f"{r}\n" for r in rows))

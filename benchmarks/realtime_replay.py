@@ -5,8 +5,7 @@ with the per-seed values and a summary per sequence (mean ± std over seeds), st
 
 Usage::
 
-    python benchmarks/realtime_replay.py --config tum/fr1_rpy-cpu-fast --seeds 5 \\
-        --out benchmarks/results/realtime_replay/fr1_rpy-cpu-fast.json
+    python benchmarks/realtime_replay.py --seeds 5 --out benchmarks/results/realtime_replay/default.json
 """
 
 from __future__ import annotations
@@ -51,7 +50,7 @@ def summary(runs: list[dict]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--config", default="tum/fr1_rpy-cpu-fast", help="preset")
+    ap.add_argument("--config", default="tum", help="preset (default tum: what lrslam run --data gives a TUM folder)")
     ap.add_argument("--data", nargs="+", default=[str(SHARED / "tum_fr1_rpy"), str(SHARED / "tum_fr1_rpy_0_124")],
                     help="data folders ('bundled': the preset's own data)")
     ap.add_argument("--seeds", type=int, default=5)

@@ -32,7 +32,7 @@ def register(subparsers) -> None:
             "output is written to --out (trajectory.txt, frames.csv, mesh.ply, metrics.json with frames processed "
             "and dropped and the latency from a frame's arrival to its pose); a second Ctrl-C stops at once. "
             "Every frame received is recorded in the TUM layout (--record, default OUT/frames) so the run can be "
-            "redone offline: lrslam run --config tum --data OUT/frames."
+            "redone offline: lrslam run --data OUT/frames."
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="example:  lrslam live --out runs/desk --rerun-connect     (pip install -e \".[realsense,viewer]\")",
@@ -81,7 +81,7 @@ def main(args) -> int:
     metrics = live_to_folder(cfg, feed, out, progress=not args.quiet, mesh=not args.no_mesh, observers=observers)
     rt = metrics["realtime"]
     print(json.dumps({"frames_received": metrics["frames_received"], **rt, "fpt_s": metrics["fpt_s"]}, default=str))
-    again = f"; the frames received in {record} (lrslam run --config tum --data {record})" if record else ""
+    again = f"; the frames received in {record} (lrslam run --data {record})" if record else ""
     print(f"outputs in {out}{again}")
     if metrics.get("camera_error"):
         print(f"lrslam live: the camera stopped early: {metrics['camera_error']}", file=sys.stderr)

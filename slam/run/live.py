@@ -3,7 +3,7 @@ free (:class:`slam.data.live.LiveFeed`), and the run ends when the camera does, 
 the camera: the frames taken are then finished, the mapper drained and every output written, as at the end of a
 recorded sequence (trajectory, frames, metrics with the ``realtime`` block, mesh). A second signal stops at once.
 A live run cannot be resumed (the stream is gone); the frames it received, recorded as a TUM folder, can be run
-again offline with ``lrslam run --config tum --data FOLDER``.
+again offline with ``lrslam run --data FOLDER``.
 """
 
 from __future__ import annotations

@@ -80,3 +80,15 @@ def test_the_preset_of_a_data_folder_is_its_detected_kind(tiny_seq, tmp_path, sh
         data_preset(str(tmp_path))
     with pytest.raises(SlamInputError, match="not found"):
         data_preset(str(tmp_path / "missing"))
+
+
+def test_every_detected_dataset_kind_has_its_preset():
+    """``lrslam run --data DIR`` runs the preset named after the detected kind: every kind a probe detects has one."""
+    from slam.config import load_config
+    from slam.config.presets import CONFIG_DIR
+    from slam.data import DATASETS
+
+    for name, kind in DATASETS.items():
+        if kind.looks_like is not None:
+            assert (CONFIG_DIR / f"{name}.yaml").is_file(), name
+            assert load_config(name).data.kind == name

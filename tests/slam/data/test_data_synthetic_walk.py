@@ -46,7 +46,7 @@ def preset_run(tmp_path_factory):
     cache, out = tmp_path_factory.mktemp("run_cache"), tmp_path_factory.mktemp("walk_run") / "run"
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("LRSLAM_CACHE", str(cache))
-        assert main(["run", "--config", "synthetic/walk", "--out", str(out), *RUN]) == 0
+        assert main(["run", "--config", "synthetic/walk", "--profile", "quality", "--out", str(out), *RUN]) == 0
     return out, cache
 
 

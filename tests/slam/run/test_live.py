@@ -125,6 +125,27 @@ def test_lrslam_live_runs_a_camera_from_the_command_line(tiny_seq, tmp_path, mon
     assert main(["live", "--camera", "fake", "--config", "synthetic", "--out", str(out), "--no-mesh", "--quiet",
                  *TINY[1:]]) == 0
     said = capsys.readouterr().out
-    assert '"frames_received": 8' in said and f"lrslam run --config tum --data {out / 'frames'}" in said
+    assert '"frames_received": 8' in said and f"lrslam run --data {out / 'frames'}" in said
     assert (out / "frames" / "rgb.txt").exists() and (out / "trajectory.txt").exists()
     assert main(["live", "--camera", "fake", "--out", str(out), "--max-frames", "0"]) == 2
+
+
+def test_lrslam_live_logs_the_run_to_rerun_as_it_goes(tiny_seq, tmp_path, monkeypatch, capsys):
+    """``lrslam live --rerun FILE`` (as ``--rerun-connect`` streams): the camera pose of every frame processed, equal
+    to the written trajectory, and its images."""
+    pytest.importorskip("rerun")
+    import slam.commands.live as live_cmd
+    from slam.cli import main
+    from tests.slam.run.test_viewer import read_recording
+
+    monkeypatch.setitem(live_cmd.CAMERAS, "fake", lambda args: FakeCamera(tiny_seq, frames=8))
+    out, rrd = tmp_path / "out", tmp_path / "live.rrd"
+    assert main(["live", "--camera", "fake", "--config", "synthetic", "--out", str(out), "--no-mesh", "--quiet",
+                 "--rerun", str(rrd), *TINY[1:]]) == 0
+    assert "Rerun recording" in capsys.readouterr().out or rrd.exists()
+    data = read_recording(rrd)
+    est = np.atleast_2d(np.loadtxt(out / "trajectory.txt"))[:, 1:4]
+    cam = data["/world/camera"]["Transform3D:translation"]
+    assert len(cam) == len(est) >= 1
+    np.testing.assert_allclose([v[0] for _, v in cam], est, atol=1e-5)
+    assert {"/world/camera/image/rgb", "/world/camera/image/depth", "/world/trajectory/estimated"} <= set(data)
