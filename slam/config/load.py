@@ -45,17 +45,6 @@ def _representation(layers: list[dict]) -> str:
     return check_representation(rep)
 
 
-def _nest(dotted: dict) -> dict:
-    out: dict = {}
-    for key, value in dotted.items():
-        node = out
-        *parents, last = key.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[last] = value
-    return out
-
-
 def _last(layers: list[dict], section: str | None, key: str, default):
     value = default
     for layer in layers:
@@ -98,7 +87,7 @@ def load_config(preset: str | None = "synthetic", overrides: list[str] | dict | 
             raise SlamInputError(f"preset '{preset}' is the old name of {old.command()}: give those instead of "
                                  f"the old name with a profile")
         log.warning("preset '%s' is now %s", preset, old.command())
-        profile, fixed = old.profile, _nest(old.overrides)
+        profile, fixed = old.profile, parse_overrides(list(old.overrides))
     chain = preset_chain(old.preset if old is not None else preset)
     given = [base] + chain + [fixed, over]
     if profile is None:

@@ -9,7 +9,7 @@ on as :data:`ALIASES`: a data preset, a profile and the keys that made the old p
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from slam.config.presets import CONFIG_DIR, read_yaml
@@ -26,28 +26,28 @@ DEFAULT_PROFILES = {"cpu": "realtime", "cuda": "paper"}
 
 @dataclass(frozen=True)
 class Alias:
-    """An old preset name: ``preset`` read with ``profile`` and ``overrides`` (dotted keys) gives its config."""
+    """An old preset name: ``preset`` read with ``profile`` and ``overrides`` (``key=value``, as on the command line)
+    gives its config."""
 
     preset: str
     profile: str
-    overrides: dict = field(default_factory=dict)
+    overrides: tuple[str, ...] = ()
 
     def command(self) -> str:
         """The options that replace the old name, as a user types them."""
-        keys = "".join(f" {k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in self.overrides.items())
-        return f"--config {self.preset} --profile {self.profile}{keys}"
+        return " ".join(("--config", self.preset, "--profile", self.profile, *self.overrides))
 
 
-_RPY_BOX = {"scene.grow": False}
+_RPY_BOX = ("scene.grow=false",)
 #: old preset name -> what replaces it (each gives the old preset's settings; tests/slam/config check it)
 ALIASES = {
     "tum/fr1_rpy-cpu": Alias("tum/fr1_rpy", "quality", _RPY_BOX),
-    "tum/fr1_rpy-cpu-gn": Alias("tum/fr1_rpy", "quality", {**_RPY_BOX, "tracking.optimizer": "gauss_newton",
-                                                           "tracking.gn_prior": 0.03}),
+    "tum/fr1_rpy-cpu-gn": Alias("tum/fr1_rpy", "quality", (*_RPY_BOX, "tracking.optimizer=gauss_newton",
+                                                           "tracking.gn_prior=0.03")),
     "tum/fr1_rpy-cpu-fast": Alias("tum/fr1_rpy", "realtime", _RPY_BOX),
-    "tum/fr1_rpy-eslam-cpu": Alias("tum/fr1_rpy", "paper", {
-        "tracking.iters": 30, "tracking.pixels": 1000, "mapping.every_frame": 4, "mapping.keyframe_every": 4,
-        "mapping.iters": 20, "mapping.pixels": 2000, "mapping.iters_first": 200}),
+    "tum/fr1_rpy-eslam-cpu": Alias("tum/fr1_rpy", "paper", (
+        "tracking.iters=30", "tracking.pixels=1000", "mapping.every_frame=4", "mapping.keyframe_every=4",
+        "mapping.iters=20", "mapping.pixels=2000", "mapping.iters_first=200")),
 }
 
 

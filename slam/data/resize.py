@@ -16,7 +16,8 @@ SIDE_MULTIPLE = 8
 
 def working_size(intrinsics: Intrinsics, focal_px: float) -> tuple[int, int]:
     """``(H, W)`` of the working image for a camera: the raw image scaled so its focal length becomes about
-    ``focal_px`` pixels, never up (a camera at or below it keeps its size), each side rounded to a multiple of :data:`SIDE_MULTIPLE`.
+    ``focal_px`` pixels, never up (a camera at or below it keeps its size), each side rounded to a multiple of
+    :data:`SIDE_MULTIPLE`.
 
     One focal length for every camera gives every dataset the same angular resolution (degrees per pixel), which is
     what the per-pixel budgets (pixels sampled, image-space edges) were measured at: TUM's Kinect (517 px on 640x480)
