@@ -1,5 +1,5 @@
 """The scene of docs/nerf.md's nerfstudio comparisons, shared by the benchmarks that train on it
-(``nerf_step_split.py``, ``nerf_end_to_end.py``) so that they measure the same room: the synthetic room exported as
+(``nerf_end_to_end.py``, and the retired ``nerf_step_split.py``) so that they measure the same room: the synthetic room exported as
 a nerfstudio dataset, 24 views of 48x64 (21 for training, every 8th held out)."""
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ def parse_variant(text: str) -> dict:
 
 def save_variant_runs(out: Path, stem: str, variants: list[dict], runs: list[dict], table: str, **extra) -> None:
     """Write ``out/{stem}.json`` (stamp, command line, ``extra``, the variants and every run) and ``out/{stem}.md``
-    (``table``), and print the table: the outputs of frame_breakdown.py and call_faults.py."""
+    (``table``), and print the table: the outputs of frame_breakdown.py."""
     from _stamp import stamp
 
     record = {"stamp": stamp(), "command": " ".join(sys.argv), **extra, "variants": variants, "runs": runs}

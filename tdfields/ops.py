@@ -66,7 +66,7 @@ def interpolate(grid: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
 
 #: above this rank the generated compose kernel falls off a cliff (forward+backward, 1 thread, 64-128 samples a side,
 #: 16-32 channels: 0.5-1.1x of the einsum reference up to rank 16, 5-16x slower at 32 and 64;
-#: benchmarks/compose_rank.py), so composition goes to the reference there
+#: benchmarks/compose_rank.py at f5975fa, since retired), so composition goes to the reference there
 FUSED_COMPOSE_MAX_RANK = 16
 
 

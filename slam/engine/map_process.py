@@ -3,7 +3,7 @@
 In parallel mode the tracker and the mapper are two threads of one Python process, and every torch op and numba
 kernel call takes the interpreter's lock. At ``tum/fr1_rpy-cpu-fast`` (small, many ops) a warm mapping call beside a
 tracking thread took 65 % longer than alone and a tracking call beside a mapping thread 59 %, against 0 % and 12 %
-beside a separate process (``benchmarks/thread_contention.py``, docs/benchmarks.md).
+beside a separate process (``benchmarks/thread_contention.py`` at f5975fa, since retired).
 Here the mapping calls run in a child process instead, on a replica of the map and the keyframes that the parent
 keeps in step:
 

@@ -51,7 +51,7 @@ def keep_freed_memory() -> bool:
     reused instead. The cost: the process keeps its peak heap size until it exits (glibc still maps
     allocations of other threads' arenas that do not fit a heap). A warm ``tum/fr1_rpy-cpu-fast`` mapping call on
     the mapper's thread faults no page in (about 16,000 while the threshold reached glibc as 0;
-    ``benchmarks/call_faults.py``).
+    ``benchmarks/call_faults.py`` at f5975fa, since retired).
 
     Returns:
         True when the setting was applied (now or earlier), False where it does not apply (not glibc).

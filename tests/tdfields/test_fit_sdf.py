@@ -1,7 +1,7 @@
 """Every kind learns a sphere SDF to a stated error within a stated number of Adam steps on the CPU.
 
-The bound and step count are what docs/tdfields.md quotes; the docs table comes from
-benchmarks/fit_rates.py, which runs the same fit longer.
+The bound and step count are what docs/tdfields.md quotes; the docs table came from
+benchmarks/fit_rates.py (at f5975fa, since retired), which ran the same fit longer.
 """
 
 import torch

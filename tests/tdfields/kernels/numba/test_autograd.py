@@ -254,7 +254,7 @@ def test_empty_batches():
 
 def test_composition_above_the_fused_rank_limit_takes_the_reference(monkeypatch):
     """Above FUSED_COMPOSE_MAX_RANK the generated compose kernel is 5-16x slower than einsum
-    (benchmarks/compose_rank.py): dispatch goes to the reference there, and at the limit still to the kernel."""
+    (benchmarks/compose_rank.py at f5975fa, since retired): dispatch goes to the reference there, and at the limit still to the kernel."""
     from tdfields import ops
 
     calls = []
