@@ -41,18 +41,6 @@ def stamp_line(info: dict) -> str:
             f"on {info['cpu']} ({info['torch_threads']} threads), device {dev}.")
 
 
-def write_block(doc, name: str, text: str) -> None:
-    """Replace what lies between ``<!-- name:start -->`` and ``<!-- name:end -->`` in the markdown file ``doc``."""
-    from pathlib import Path
-
-    doc = Path(doc)
-    body = doc.read_text()
-    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    if start not in body or end not in body:
-        raise SystemExit(f"{doc}: markers {start} / {end} not found")
-    doc.write_text(body[: body.index(start) + len(start)] + "\n" + text + "\n" + body[body.index(end):])
-
-
 def write_timings(out, times: dict, label: str, **fields) -> dict:
     """Print the median of each list of seconds in ``times`` (``{setting: [s, ...]}``, one line each, prefixed by
     ``label``) and write them, every value, the stamp, the command line and ``fields`` to the JSON file ``out``."""

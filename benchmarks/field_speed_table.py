@@ -1,6 +1,6 @@
-"""Turn a pytest-benchmark JSON of test_field_speed.py into the docs table (medians and ratios).
+"""Turn a pytest-benchmark JSON of test_field_speed.py into the docs table (medians and ratios); docs/results.md is then rewritten by ``python benchmarks/results_page.py``.
 
-    python benchmarks/field_speed_table.py benchmarks/results/field_speed.json --docs
+    python benchmarks/field_speed_table.py benchmarks/results/field_speed.json --threads 1
 """
 
 from __future__ import annotations
@@ -73,7 +73,6 @@ def main(argv=None) -> int:
     p.add_argument("json", type=Path, help="output of pytest --benchmark-json")
     p.add_argument("--threads", default="?", help="thread count the run used (for the stamp)")
     p.add_argument("--gpu", default="", help="GPU name for the stamp when the run had CUDA cases")
-    p.add_argument("--docs", action="store_true", help="write the table into docs/benchmarks.md")
     args = p.parse_args(argv)
     if not args.json.is_file():
         print(f"field_speed_table: error: no such file: {args.json}", file=sys.stderr)
@@ -86,10 +85,6 @@ def main(argv=None) -> int:
 
     text = table(data, tdfields.__version__)
     print(text)
-    if args.docs:
-        from _stamp import write_block
-
-        write_block(ROOT / "docs" / "benchmarks.md", "field-speed", text)
     return 0
 
 

@@ -7,10 +7,9 @@ profiler's allocation events; CUDA: ``max_memory_allocated``). The fixed per-poi
 steps on a 2x2x2 grid and subtracted, leaving the memory that grows with the scene. Growth exponents are
 least-squares slopes in log-log space, fitted on the largest sizes.
 
-Writes ``memory_growth.csv``, ``memory_growth.json`` and ``memory_growth.png`` to ``--out`` and, with
-``--docs``, refreshes the table in docs/benchmarks.md between its markers.
+Writes ``memory_growth.csv``, ``memory_growth.json`` and ``memory_growth.png`` to ``--out``; docs/results.md is then rewritten by ``python benchmarks/results_page.py``.
 
-    python benchmarks/memory_growth.py --out benchmarks/results --docs
+    python benchmarks/memory_growth.py --out benchmarks/results
 """
 
 from __future__ import annotations
@@ -203,10 +202,9 @@ def main(argv=None) -> int:
     p.add_argument("--fit-last", type=int, default=3, help="fit slopes on this many largest sizes (default 3)")
     p.add_argument("--dense-limit-gib", type=float, default=6.0, help="skip dense grids whose training state exceeds this")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
-    p.add_argument("--docs", action="store_true", help="refresh docs/benchmarks.md and docs/images/memory_growth.png")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from _stamp import stamp, stamp_line, write_block
+    from _stamp import stamp, stamp_line
     from tdfields import kernels
 
     kernels.set_backend(args.backend)
@@ -220,18 +218,12 @@ def main(argv=None) -> int:
         w.writeheader()
         w.writerows(rows)
     (args.out / "memory_growth.json").write_text(json.dumps({"stamp": info, "settings": {
-        k: v for k, v in vars(args).items() if k not in {"out", "docs"}},
+        k: v for k, v in vars(args).items() if k != "out"},
         "exponents": exps, "rows": rows}, indent=2))
     text = stamp_line(info)
     plot(rows, exps, args.out / "memory_growth.png", text)
     table = markdown(rows, exps, text)
     print(table)
-    if args.docs:
-        import shutil
-
-        (ROOT / "docs" / "images").mkdir(parents=True, exist_ok=True)
-        shutil.copy(args.out / "memory_growth.png", ROOT / "docs" / "images" / "memory_growth.png")
-        write_block(ROOT / "docs" / "benchmarks.md", "memory-growth", table)
     return 0
 
 

@@ -237,8 +237,6 @@ def main(argv=None) -> int:
     ap.add_argument("--settings", nargs="+", default=["before", "after"], choices=list(SETTINGS))
     ap.add_argument("--presets", nargs="+", default=None, help="default: synthetic (room), tum/fr1_rpy-cpu (tum-loop)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "memory_rss"))
-    ap.add_argument("--docs", default=None, metavar="BLOCK", help="write the table into docs/benchmarks.md between "
-                    "<!-- BLOCK:start --> and <!-- BLOCK:end -->")
     args = ap.parse_args(argv)
     if args.frames < 150:
         ap.error("--frames must be >= 150 (growth is measured after frame 100)")
@@ -256,7 +254,7 @@ def main(argv=None) -> int:
         data = looped_tum(shared, args.frames, out)
         presets = args.presets or ["tum/fr1_rpy-cpu"]
         title = f"TUM fr1_rpy pairs 0-224 forth and back to {args.frames} frames"
-    from _stamp import stamp, write_block
+    from _stamp import stamp
 
     import torch
 
@@ -286,11 +284,6 @@ def main(argv=None) -> int:
     plot(results, out / "memory_rss.png", f"Resident memory: {title}")
     text = table(results, st, title)
     print(text)
-    if args.docs:
-        import shutil
-
-        shutil.copy(out / "memory_rss.png", ROOT / "docs" / "images" / f"{args.docs}.png")
-        write_block(ROOT / "docs" / "benchmarks.md", args.docs, text)
     return 0
 
 

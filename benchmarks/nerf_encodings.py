@@ -29,11 +29,11 @@ CP and tri-plane pairs start as the same function (the tdfields factors are copi
 VM starts from the same factors (its features are nerfstudio's three C-wide blocks summed); Six-axis against
 K-Planes and the hash grid are different functions and start from each library's own initialisation.
 
-    python benchmarks/nerf_encodings.py --docs          # the published run: 10 minutes on 2 busy CPU cores
-    /tmp/nsvenv/bin/python benchmarks/nerf_encodings.py --docs   # with nerfstudio (docs/nerf.md, "nerfstudio")
+    python benchmarks/nerf_encodings.py                 # tdfields alone: 10 minutes on 2 busy CPU cores
+    /tmp/nsvenv/bin/python benchmarks/nerf_encodings.py   # the published run, with nerfstudio (docs/nerf.md, "nerfstudio")
 
 Without nerfstudio it measures tdfields alone and says so. Writes ``--out``/nerf_encodings.json and .png;
-``--docs`` also writes the tables into docs/benchmarks.md.
+docs/results.md is then rewritten by ``python benchmarks/results_page.py``.
 """
 
 from __future__ import annotations
@@ -561,8 +561,7 @@ def main(argv=None) -> int:
     p.add_argument("--no-psnr", action="store_true", help="speed only")
     p.add_argument("--no-speed", action="store_true", help="PSNR only")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "nerf_encodings")
-    p.add_argument("--docs", action="store_true", help="write the tables into docs/benchmarks.md")
-    p.add_argument("--from-json", type=Path, help="measure nothing: tables, figure (and --docs) from this JSON")
+    p.add_argument("--from-json", type=Path, help="measure nothing: tables and figure from this JSON")
     args = p.parse_args(argv)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _stamp import stamp, stamp_line
@@ -595,8 +594,7 @@ def main(argv=None) -> int:
 
 
 def publish(result: dict, args, write_json: bool = True) -> int:
-    """Print the tables; write the JSON (unless re-publishing one), the figure and, with ``--docs``, the tables
-    into docs/benchmarks.md."""
+    """Print the tables; write the JSON (unless re-publishing one) and the figure."""
     text = tables(result)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -604,14 +602,6 @@ def publish(result: dict, args, write_json: bool = True) -> int:
         (args.out / "nerf_encodings.json").write_text(json.dumps(result, indent=2) + "\n")
     if result["psnr"]:
         plot(result, args.out / "nerf_encodings.png")
-    if args.docs:
-        from _stamp import write_block
-
-        s = result["settings"]
-        head = (f"{result['stamp_line']} nerfstudio {result['nerfstudio'] or 'not installed'}. Speed at "
-                f"{', '.join(map(str, s['threads']))} threads, {s['points']:,} points; PSNR runs at "
-                f"{s['psnr_threads']} thread(s). CUDA {result['cuda']}.\n\n`{result['command']}`\n\n")
-        write_block(ROOT / "docs" / "benchmarks.md", "nerf-encodings", head + text)
     return 0
 
 

@@ -10,12 +10,11 @@ outside a kind's measured range are not extrapolated). The ratio column is each 
 kind's (``--reference``, default six_axis): above 1, the kind needs more parameters than the reference for the
 same held-out PSNR.
 
-    python benchmarks/psnr_budget.py --out benchmarks/results/psnr_budget --docs     # ~20 min on 2 cores
+    python benchmarks/psnr_budget.py --seeds 3 --out benchmarks/results/psnr_budget   # ~20 min on 2 cores
     python benchmarks/psnr_budget.py --budgets 20000 40000 --seeds 1 --steps 50 --out /tmp/pb   # a smoke run
 
 Writes ``psnr_budget.json`` (every run's metrics, the per-budget means and the parameters at each level),
-``psnr_budget.png`` (PSNR against parameters, mean and spread over seeds) and, with ``--docs``, the table into
-docs/nerf.md (block ``psnr-budget``).
+``psnr_budget.png`` (PSNR against parameters, mean and spread over seeds); docs/results.md is then rewritten by ``python benchmarks/results_page.py``.
 """
 
 from __future__ import annotations
@@ -156,11 +155,10 @@ def main(argv=None) -> int:
     ap.add_argument("--levels", type=float, nargs="+", help="PSNR levels (default: every 0.5 dB all kinds reach)")
     ap.add_argument("--jobs", type=int, default=2, help="example processes at a time (one thread each)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "psnr_budget")
-    ap.add_argument("--docs", action="store_true", help="write the tables into docs/nerf.md (block psnr-budget)")
-    ap.add_argument("--from-json", type=Path, help="measure nothing: table and figure (and --docs) from this JSON")
+    ap.add_argument("--from-json", type=Path, help="measure nothing: table and figure from this JSON")
     args = ap.parse_args(argv)
     if args.from_json:
-        return publish(json.loads(args.from_json.read_text()), args.from_json.parent, args.docs)
+        return publish(json.loads(args.from_json.read_text()), args.from_json.parent)
     if args.reference not in args.kinds:
         ap.error(f"--reference {args.reference} is not one of --kinds")
     if len(args.budgets) < 2 or sorted(args.budgets) != args.budgets:
@@ -186,27 +184,20 @@ def main(argv=None) -> int:
     st["torch_threads"] = 1  # each example process runs one thread
     command = "python benchmarks/psnr_budget.py " + " ".join(argv if argv is not None else sys.argv[1:])
     result = {"stamp": st, "command": command.strip(), "seconds": round(time.perf_counter() - t0, 1),
-              "settings": {**{k: v for k, v in vars(args).items() if k not in ("out", "docs", "levels", "jobs")},
+              "settings": {**{k: v for k, v in vars(args).items() if k not in ("out", "levels", "jobs")},
                            "levels": levels},
               "runs": rows, "curves": curves, "levels": levels_table(curves, levels, args.reference)}
     (args.out / "psnr_budget.json").write_text(json.dumps(result, indent=1))
-    return publish(result, args.out, args.docs)
+    return publish(result, args.out)
 
 
-def publish(result: dict, out: Path, docs: bool) -> int:
-    """The figure next to the JSON, the tables printed (and written into docs/nerf.md with ``docs``)."""
-    from _stamp import write_block
-
+def publish(result: dict, out: Path) -> int:
+    """The figure next to the JSON, the tables printed."""
     s = result["settings"]
     plot(result["curves"], out / "psnr_budget.png",
          f"Synthetic room {s['size']}, {s['steps']} steps, {s['seeds']} seeds")
     text = markdown(result)
     print(text)
-    if docs:
-        import shutil
-
-        shutil.copy(out / "psnr_budget.png", ROOT / "docs" / "images" / "psnr_budget.png")
-        write_block(ROOT / "docs" / "nerf.md", "psnr-budget", text)
     return 0
 
 

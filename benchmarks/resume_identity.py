@@ -90,14 +90,15 @@ def faulted(preset: str, overrides: list[str], at: int, fault: str, cut: Path) -
     return lines[0]
 
 
-def pair(preset: str, data: Path, seed: int, parallel: bool, at: int, out: Path, fault: str = "sigint") -> dict:
+def pair(preset: str, data: Path, seed: int, parallel: bool, at: int, out: Path, fault: str = "sigint",
+         extra: list[str] = ()) -> dict:
     """One uninterrupted run and one stopped by ``fault`` after frame ``at`` then resumed; their hashes and
     metrics."""
     from slam.run.checkpoint import load_run
     from slam.config import load_config
     from slam.run.runner import RunInterrupted, run_to_folder
 
-    overrides = [f"data.path={data}", f"seed={seed}", f"parallel={str(parallel).lower()}"]
+    overrides = [f"data.path={data}", f"seed={seed}", f"parallel={str(parallel).lower()}", *extra]
     cfg = load_config(preset, overrides)
     tag = f"{data.name}-s{seed}-{'par' if parallel else 'seq'}"
     full, cut = out / f"{tag}-full", out / f"{tag}-resumed"
@@ -137,6 +138,7 @@ def main(argv=None) -> int:
     ap.add_argument("--at", type=int, default=50, help="interrupt after this frame position")
     ap.add_argument("--fault", default="sigint", choices=["sigint", "sigterm-group", "kill-child"],
                     help="how the run is stopped (see above; the last two need mapper_process: true)")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", help="config overrides of every run")
     ap.add_argument("--out", default="benchmarks/results/resume_identity")
     args = ap.parse_args(argv)
     out = Path(args.out)
@@ -148,7 +150,8 @@ def main(argv=None) -> int:
     for mode in args.modes:
         for data in map(Path, args.data):
             for seed in range(args.seeds):
-                runs.append(pair(args.config, data, seed, mode == "parallel", args.at, out / "runs", args.fault))
+                runs.append(pair(args.config, data, seed, mode == "parallel", args.at, out / "runs", args.fault,
+                                 args.set))
                 r = runs[-1]
                 print(f"{data.name} seed {seed} {mode}: identical={r['identical']} pending={r['pending_at_stop']} "
                       f"ATE {r['ate_rmse_cm']:.3f} cm", flush=True)

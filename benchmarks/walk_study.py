@@ -11,13 +11,13 @@ ratio is how much of the walked building a fixed box maps.
 
 Usage::
 
-    python benchmarks/walk_study.py --frames 1050 --seeds 5 --out benchmarks/results/walk --docs
+    python benchmarks/walk_study.py --frames 1050 --seeds 5 --out /tmp/walk1050
     python benchmarks/walk_study.py --frames 2100 --seeds 5 --continue --out benchmarks/results/walk_full
         # the whole walk, spread over sittings: each runs what is missing and may be stopped at any time;
         # --from-partial then summarises the seeds every config has finished
 
 Writes ``walk_study.json`` (every run's values per seed, the summaries, the per-frame series), ``walk_study.png``
-(parameters and bytes against metres walked) and, with ``--docs``, the table into docs/benchmarks.md.
+(parameters and bytes against metres walked); docs/results.md is then rewritten by ``python benchmarks/results_page.py``.
 """
 
 from __future__ import annotations
@@ -136,7 +136,6 @@ def main(argv=None) -> int:
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     ap.add_argument("--mesh-resolution", type=float, default=0.04, help="marching-cubes cell (m) for the metrics")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "walk"))
-    ap.add_argument("--docs", action="store_true", help="write the table into docs/benchmarks.md (block walk-study)")
     ap.add_argument("--continue", dest="resume", action="store_true",
                     help="keep the runs OUT/walk_study.partial.json already holds (same --frames) and run only the "
                     "missing (config, seed) pairs: a study too long for one sitting is spread over several, killed "
@@ -146,7 +145,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from _stamp import stamp, write_block
+    from _stamp import stamp
 
     import torch
 
@@ -187,11 +186,6 @@ def main(argv=None) -> int:
     plot(curves, out / "walk_study.png")
     text = table(summ, curves, st, args.frames, args.seeds)
     print(text)
-    if args.docs:
-        import shutil
-
-        shutil.copy(out / "walk_study.png", ROOT / "docs" / "images" / "walk_study.png")
-        write_block(ROOT / "docs" / "benchmarks.md", "walk-study", text)
     return 0
 
 

@@ -1,11 +1,13 @@
 """benchmarks/before_after.py (shared by frame_breakdown.py): a variant's relative paths mean what they meant where
 the command was typed, though every run starts in its own checkout."""
 
+import json
 from pathlib import Path
 
 import pytest
 
 from tests.benchmarks.conftest import load_script
+from tests.slam.conftest import tiny_seq  # noqa: F401 - the tiny room, a fixture
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -32,3 +34,17 @@ def test_a_variant_that_is_not_a_checkout_is_a_usage_error(before_after, tmp_pat
         before_after.parse_variant(f"a={tmp_path}:--no-mesh")
     with pytest.raises(SystemExit, match="NAME=CHECKOUT:ARGS"):
         before_after.parse_variant("no-equals-sign")
+
+
+def test_a_toy_run_times_each_variant_and_tables_it(tiny_seq, tmp_path):
+    """Two interleaved repeats of this checkout on the tiny room: the JSON holds both runs and their median."""
+    from tests.slam.conftest import TINY
+
+    bench = load_script("before_after")
+    variant = f"now={ROOT}:--config synthetic --data {tiny_seq} --no-mesh parallel=false {' '.join(TINY)}"
+    assert bench.main(["--variant", variant, "--repeats", "2", "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "before_after.json").read_text())
+    (row,) = doc["rows"]
+    assert len(doc["runs"]) == 2 and row["fpt_s"] == pytest.approx(sorted(row["fpt_runs_s"])[0], abs=1e-3) or \
+        min(row["fpt_runs_s"]) <= row["fpt_s"] <= max(row["fpt_runs_s"])
+    assert "now" in (tmp_path / "before_after.md").read_text()
