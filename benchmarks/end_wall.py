@@ -1,6 +1,6 @@
 """Replay a stretch of a run from its checkpoint under config variants, frame by frame against the ground truth.
 
-Built for the whole walk's end-wall failure (docs/slam.md, Robustness: "Depth ICP holds what it cannot see"): the
+Built for the whole walk's end-wall failure (docs/robustness.md, "Depth ICP holds what it cannot see"): the
 camera turns about a metre in front of a wall and the estimate rolls about the wall's normal. The run is taken to
 ``--resume-at`` once (``lrslam run --stop-after``, kept in ``OUT/prefix``; about 25 minutes for the walk's frame
 1960 on 2 cores), then every variant resumes from that checkpoint (the same map, poses and random state) and runs to
