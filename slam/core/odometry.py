@@ -213,7 +213,7 @@ def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_j
 # raw normals' noise (a few millimetres of depth noise over neighbours a centimetre apart) makes a flat wall look
 # as constrained in its sliding directions as a furnished room (eigenvalue ratios 2e-3 to 1e-2 for both); averaged,
 # a flat wall's three fall to 1e-5 to 2e-4, while the TUM office's weakest stays at 3e-3 or more and a corridor's
-# axis at 1e-3 (docs/slam.md, Robustness)
+# axis at 1e-3 (docs/robustness.md, "Depth ICP holds what it cannot see")
 SMOOTH_NORMALS = 5
 
 
@@ -255,7 +255,7 @@ def hold_unobserved(relative: torch.Tensor, hold: torch.Tensor, directions: torc
 
     Why: ICP cannot move a pose along a direction depth does not observe, so it keeps whatever its start had
     there. When the start is a constant-velocity prediction, an error in that direction becomes the next frame's
-    velocity and grows frame after frame (docs/slam.md, Robustness: "Depth ICP holds what it cannot see").
+    velocity and grows frame after frame (docs/robustness.md, "Depth ICP holds what it cannot see").
     """
     if directions.shape[1] == 0:
         return relative

@@ -5,7 +5,7 @@ decoding, undistorting and resizing them and putting them on the run's device. `
 on a background thread while the loop works on the current frame (image decoding and torch's resampling release the
 GIL, so this uses the second core); ``waits`` does it on the loop's own thread while the loop waits for the mapper
 (:meth:`FrameSource.read_while`), so no thread competes with the tracker for the interpreter and the cores (ours:
-7-9 % of the frame time at ``tum/fr1_rpy-cpu-fast``, docs/slam.md, "Frames read in the tracker's waits"). A frame that
+7-9 % of the frame time at the realtime profile, docs/slam.md, "Frames read in the tracker's waits"). A frame that
 cannot be read (missing, truncated or corrupt file, wrong image size) comes back as a :class:`LoadedFrame` with
 ``error`` set instead of raising, so the loop can skip it like a frame without depth and keep the run.
 

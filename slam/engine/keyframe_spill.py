@@ -2,7 +2,7 @@
 window (``mapping.keyframes_in_memory``) in one unlinked temporary file, and reads them back when a mapping window
 selects them. The bytes are written as stored (float32, or the compact 8-bit / float16 form), so what comes back
 is bit-identical to what went out and a run's results do not depend on where its keyframes live
-(docs/slam.md, "Memory on long runs")."""
+(docs/robustness.md, "Memory on long runs")."""
 
 from __future__ import annotations
 

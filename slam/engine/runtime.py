@@ -107,15 +107,15 @@ def cpu_name() -> str:
 @functools.cache
 def float_fingerprint() -> str:
     """16 hex digits that differ between machines whose float32 arithmetic rounds differently, for stamping seeded
-    runs: a seed repeats a run exactly only where this agrees (docs/slam.md says what went wrong without it).
+    runs: a seed repeats a run exactly only where this agrees (docs/slam.md, "Determinism").
 
     The sha256 of torch's CPU capability (the instruction set ATen's own kernels were dispatched for: ``AVX512``,
     ``AVX2``, ...), of a fixed matrix product (through ``matmul`` and through ``linear``, the decoders' path) and of
     tanh / exp / sigmoid over its result, at one torch thread (the runs' count): BLAS and vector kernels chosen for
     the CPU's instruction set are where two machines' results part. The capability is in it because the products
     alone did not see it: one machine run with ``ATEN_CPU_CAPABILITY=avx2`` and with its native AVX512 gave the same
-    products and different trajectories (docs/slam.md, "Measured (2026-12-02, 2 CPU cores", where runs are paired
-    by machine). It does not see a difference in numba's code generation alone. Computed once per process (it sets
+    products and different trajectories (docs/slam.md, "Determinism", where runs are paired by
+    machine). It does not see a difference in numba's code generation alone. Computed once per process (it sets
     torch's thread count for a moment, so :class:`slam.engine.system.SLAM` takes it before any worker thread runs).
     """
     threads = torch.get_num_threads()

@@ -182,7 +182,7 @@ def _rays_that_see_the_map(scene, color, intrinsics, pose, cfg: Config, generato
 
 def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tensor, cfg: Config,
                    generator: torch.Generator, iters: int | None = None) -> tuple[TrackResult, float]:
-    """Track a frame that has no valid depth on its colour alone (ours; docs/slam.md, "Robustness").
+    """Track a frame that has no valid depth on its colour alone (ours; docs/robustness.md, "Frames without depth").
 
     One set of ``tracking.pixels`` pixels is drawn; the map is rendered at ``init_pose`` without jitter, and the
     rays that see a surface (weights summing past 0.5) take the rendered depth as their depth. Adam (as in
@@ -218,7 +218,7 @@ def track_on_color(scene, color: torch.Tensor, intrinsics, init_pose: torch.Tens
             start = _value(loss_at(init_pose, False))
         # the rotation only: one frame's colour pins where the camera looks, but barely how far it moved (the
         # parallax of one frame's motion is small), and moving the translation too doubled the error of dropped
-        # frames' motion on the fast dev window (docs/slam.md, "Robustness")
+        # frames' motion on the fast dev window (docs/robustness.md, "Frames without depth")
         lrs = torch.tensor([tc.lr_r] * 4 + [0.0] * 3, dtype=init_pose.dtype, device=device)
 
         def jittered(pose):

@@ -31,8 +31,8 @@ def predict(est: list, trusted: list, init: str) -> tuple[torch.Tensor, str]:
     trusted (``trusted`` holds a flag per pose), else the previous pose. A velocity is a measurement only between
     two trusted poses: across an untrusted one (a lost result, a prediction) or a jump back to a trusted pose
     (relocalisation, recovery from the last trusted pose) the difference of the last two poses is a correction,
-    and extrapolating it frame after frame ran a fixed-box walk out to 28 km while it was lost (docs/slam.md,
-    "Robustness")."""
+    and extrapolating it frame after frame ran a fixed-box walk out to 28 km while it was lost (docs/robustness.md,
+    "Tracking that knows when it is lost")."""
     if init != "previous" and len(est) >= 2 and trusted[-1] and trusted[-2]:
         return constant_velocity(est[-1], est[-2]), "constant-velocity pose"
     return est[-1].clone(), "previous pose"

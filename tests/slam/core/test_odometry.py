@@ -59,7 +59,7 @@ def _motion(roll_deg: float, tilt_deg: float, t) -> torch.Tensor:
 
 
 def test_facing_a_wall_icp_keeps_its_start_where_depth_cannot_see_and_the_hold_puts_back_the_previous_pose():
-    # a camera 0.6 m from a flat wall, as at the walk's end wall (docs/slam.md, Robustness: "Depth ICP holds what it
+    # a camera 0.6 m from a flat wall, as at the walk's end wall (docs/robustness.md, "Depth ICP holds what it
     # cannot see"): depth fixes the distance and the two tilts, not the turn about the normal or a slide along it
     intr = Intrinsics(130.0, 130.0, 79.5, 59.5, 120, 160)
     g = torch.Generator().manual_seed(0)
