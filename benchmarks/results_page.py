@@ -93,7 +93,8 @@ def slam_accuracy() -> str:
                       ("synthetic_seeds/slam_compare.json", "The synthetic room"),
                       ("synthetic_noise5cm_seeds/slam_compare.json", "The synthetic room, depth noise 5 cm")):
         d = _json(rel)
-        parts += ["", f"**{what}.**", "", m.markdown(d["summary"], d["stamp"], d["command"]).rstrip()]
+        parts += ["", f"**{what}.**", "", m.markdown(d["summary"], d["stamp"], d["command"]).rstrip(), "",
+                  f"Source: `benchmarks/results/{rel}`."]
     return "\n".join(parts)
 
 

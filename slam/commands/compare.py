@@ -29,7 +29,7 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "examples:\n"
-            "  lrslam compare benchmarks/results/accuracy_lift benchmarks/results/accuracy/Q_track24_map9_5seeds\n"
+            "  lrslam compare runs/before/slam_compare.json runs/after/slam_compare.json\n"
             "  lrslam compare sweeps/base/summary.json sweeps/new/summary.json --json diff.json\n"
             "  lrslam compare benchmarks/results/accuracy_final --representations eslam lrslam\n"
         ),

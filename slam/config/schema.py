@@ -117,7 +117,7 @@ class RenderingConfig:
     # ours (slam/core/fused_render.py): compositing, the colour sum and the five loss terms as numba kernels on the
     # CPU, Triton kernels on CUDA with TDFIELDS_BACKEND=triton (the PyTorch ops otherwise, and with
     # TDFIELDS_BACKEND=torch); same values to a few ulp. Off: 2-6 % off a call alone, no measurable change of the
-    # loop's frame time at the Adam preset (docs/benchmarks.md, "The fused render tail"); on in tum/fr1_rpy-cpu-fast
+    # loop's frame time at the Adam preset (docs/slam.md, "The fused render tail"); on in tum/fr1_rpy-cpu-fast
     fused: bool = False
 
 

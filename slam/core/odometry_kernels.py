@@ -4,8 +4,8 @@
 :func:`register` runs the pyramid: each level's points and normals in one pass (:func:`level_points`) and the
 level's Gauss-Newton steps in one call (:func:`register_level`: move the points, associate them
 (:func:`associate`), Huber-weighted point-to-plane normal equations, a 6x6 solve, the twist's exponential). The
-tensor-op reference spent about 1 ms a step in some forty dispatches around the association (docs/benchmarks.md,
-"Depth ICP as kernels").
+tensor-op reference spent about 1 ms a step in some forty dispatches around the association (measured at
+commit f5975fa: ``git show f5975fa:docs/benchmarks.md``, section "Depth ICP as kernels").
 
 The association repeats the reference's arithmetic (``slam.core.odometry._associate``) in float64 and in its order
 (projection, rounding half to even, the same comparisons), and its matches come out in the reference's order: the

@@ -76,7 +76,7 @@ def release_freed_memory() -> bool:
     Freed memory that glibc keeps is reused, but not all of it can be: the mapping thread's arena fragments as
     keyframes, window images and an iteration's temporaries of varying sizes come and go, and its resident size
     crept up by 0.7-3.6 MiB a frame at ``tum/fr1_rpy-cpu`` although the run's live tensors stayed flat
-    (``benchmarks/memory_rss.py``; docs/benchmarks.md, "Memory over a long run"). Trimming every few frames
+    (``benchmarks/memory_rss.py``; docs/results.md, "Memory over a long run"). Trimming every few frames
     bounds it; the pages a later call needs again fault back in (about 17 ms per 41 MB, once per trim).
 
     Returns:

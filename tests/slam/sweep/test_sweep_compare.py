@@ -15,6 +15,9 @@ from slam.errors import SlamInputError
 from slam.sweep.compare import compare, compare_values, load_runs, seeds_needed
 
 RESULTS = Path(__file__).resolve().parents[3] / "benchmarks" / "results"
+#: published screens kept as fixtures (their runs' slam_compare.json, as written then): the 3-seed screens M and O,
+#: their 5-seed rerun Q (benchmarks/results/accuracy/ at commit f5975fa) and e413641's lrslam runs (accuracy_lift)
+PUBLISHED = Path(__file__).resolve().parent / "published"
 
 
 def _slam_compare(path: Path, rep_values: dict[str, dict[int, float]], data="/d/tum_fr1_rpy") -> Path:
@@ -68,13 +71,13 @@ def test_seeds_needed_is_the_first_n_whose_interval_excludes_zero():
 
 def test_the_published_3_seed_screen_and_its_5_seed_run_disagree_and_neither_is_resolved():
     # the case that motivated the tool: O (3 seeds) looked better than M on the fast window, Q (5 seeds) worse
-    m = RESULTS / "accuracy" / "M_lr_scaling_lift"
-    o = RESULTS / "accuracy" / "O_track24_map9"
-    q = RESULTS / "accuracy" / "Q_track24_map9_5seeds"
+    m = PUBLISHED / "M_lr_scaling_lift"
+    o = PUBLISHED / "O_track24_map9"
+    q = PUBLISHED / "Q_track24_map9_5seeds"
     fast = "tum/fr1_rpy-cpu (tum_fr1_rpy_0_124)"
     (mo,) = [d for d in compare(m, o) if d.config == fast and d.representation == "lrslam"]
     assert mo.method == "paired" and mo.diff < 0 and mo.verdict == "unresolved"
-    lift = RESULTS / "accuracy_lift"
+    lift = PUBLISHED / "accuracy_lift"
     (lq,) = [d for d in compare(lift, q) if d.config == fast and d.representation == "lrslam"]
     assert lq.diff > 0 and lq.verdict == "unresolved" and len(lq.a) == len(lq.b) == 5
     assert lq.diff == pytest.approx(statistics.fmean(lq.b) - statistics.fmean(lq.a))
@@ -140,7 +143,7 @@ def test_representations_compares_the_candidate_against_the_reference_on_the_sam
 def test_issue_9_fast_window_gap_between_lrslam_and_eslam_is_inside_the_seeds_spread():
     # the published e413641 lrslam runs against eslam's (valid for e413641: tri-planes have step scale 1.0)
     fast = "tum/fr1_rpy-cpu (tum_fr1_rpy_0_124)"
-    diffs = {d.config: d for d in compare(RESULTS / "accuracy_final", RESULTS / "accuracy_lift", ("eslam", "lrslam"))}
+    diffs = {d.config: d for d in compare(RESULTS / "accuracy_final", PUBLISHED / "accuracy_lift", ("eslam", "lrslam"))}
     assert diffs[fast].verdict == "unresolved" and 0 < diffs[fast].diff < diffs[fast].half_width
     before = {d.config: d for d in compare(RESULTS / "accuracy_final", representations=("eslam", "lrslam"))}
     assert before[fast].verdict == "B higher"  # e2051a7: lrslam 0.6 cm behind, resolved
