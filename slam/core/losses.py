@@ -36,12 +36,13 @@ class LossWeights:
     values for tracking and mapping: ``slam.config.TRACKING_WEIGHTS`` / ``MAPPING_WEIGHTS``, the config keys
     ``tracking.weights`` / ``mapping.weights``)."""
 
-    fs: float = field(metadata={"doc": "free-space term: `(s - 1)^2` of the samples in front of the band, "
-                                       "`z < D - T`"})
-    center: float = field(metadata={"doc": "SDF centre term: `(z + s T - D)^2` of the samples with `|z - D| < 0.4 T`"})
-    tail: float = field(metadata={"doc": "SDF tail term: the same of the rest of the band, `|z - D| <= T`"})
-    depth: float = field(metadata={"doc": "depth term: the mean squared error of the rendered depth"})
-    color: float = field(metadata={"doc": "colour term: the mean squared error of the rendered colour"})
+    fs: float = field(metadata={"doc": "weight of the free-space term, `(s - 1)^2` of the samples in front of the "
+                                       "band, `z < D - T`"})
+    center: float = field(metadata={"doc": "weight of the SDF centre term, `(z + s T - D)^2` of the samples within "
+                                           "`0.4 T` of the depth"})
+    tail: float = field(metadata={"doc": "weight of the SDF tail term, the same of the rest of the band (within `T`)"})
+    depth: float = field(metadata={"doc": "weight of the depth term, the mean squared error of the rendered depth"})
+    color: float = field(metadata={"doc": "weight of the colour term, the mean squared error of the rendered colour"})
 
 
 def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

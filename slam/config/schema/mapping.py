@@ -63,7 +63,7 @@ class MappingConfig:
         "bit-identical when selected (slam/engine/keyframe_spill.py); 0: all in memory"))
     keyframe_spill_dir: str = key("", "(ours) the folder of that file (\"\": the system's temporary folder); may "
                                       "change on `--resume`")
-    weights: LossWeights = key(MAPPING_WEIGHTS, "the mapping loss's weight per term (ESLAM's)")
+    weights: LossWeights = key(MAPPING_WEIGHTS, "the mapping loss's weight of each term (ESLAM's)")
     schedule: str = choice("every_frame", ("every_frame", "by_need"), doc=(
         "(ours) `every_frame`: ESLAM's fixed schedule; `by_need` maps the first `need_young` frames, then a frame "
         "once `need_max_gap` frames passed since the last mapped one or when its tracking loss is high "

@@ -46,7 +46,7 @@ class SceneConfig:
         "starting half-size of the camera, so a camera turning in place does not grow it and one that moves does "
         "(a given box: every reading)"))
     truncation: float = num(0.06, **METRES, doc=(
-        "SDF truncation T (metres): the band `|z - D| <= T` of the SDF losses, and the mesh culling's occlusion "
+        "SDF truncation T (metres): the band `D - T <= z <= D + T` of the SDF losses, and the mesh culling's occlusion "
         "tolerance"))
     learnable_beta: bool = key(True, "optimise beta, the sharpness of the SDF-to-opacity conversion, with the decoders "
                                      "(false: fixed at `beta_init`; the presets of noisy depth)")

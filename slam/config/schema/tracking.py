@@ -55,7 +55,7 @@ class TrackingConfig:
     without_depth: str = choice("color", ("color", "predict"), doc=(
         "(ours) a frame without valid depth is tracked on its `color` against the map's rendered depth, or keeps the "
         "motion model's prediction (`predict`); either way it is not mapped"))
-    weights: LossWeights = key(TRACKING_WEIGHTS, "the tracking loss's weight per term (ESLAM's)")
+    weights: LossWeights = key(TRACKING_WEIGHTS, "the tracking loss's weight of each term (ESLAM's)")
     optimizer: str = choice("adam", ("adam", "gauss_newton"), doc=(
         "(ours) `adam`: ESLAM's tracker (`iters`, `lr_*`, `patience`); `gauss_newton`: Levenberg-Marquardt on one set "
         "of pixels per round (`gn_*`; slam/engine/gauss_newton.py)"))
