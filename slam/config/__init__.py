@@ -13,7 +13,8 @@ preset's or an override's) wins.
 Every key is checked against the dataclasses below, and every numeric key against its range (``num(...)``): an
 unknown key or file, a badly typed or out-of-range value raises :class:`slam.errors.SlamInputError` naming the key,
 the value and what is allowed. Defaults are ESLAM's (docs/slam.md, "The pipeline (as implemented)") unless a
-field's comment says otherwise.
+key's meaning says "(ours)". Every key with its type, default, range and meaning: docs/configuration.md, written
+by :mod:`slam.config.reference`.
 """
 
 from slam.config.load import (

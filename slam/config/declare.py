@@ -1,6 +1,7 @@
-"""How a config key is declared: :func:`num` (a numeric key and its :class:`Range`), :func:`choice` (one of a set of
-values, or of a registry's names read when checked: :class:`RegistryNames`), and the common ranges. The schema
-(:mod:`slam.config.schema`) declares every key with them; :mod:`slam.config.validate` checks values against them."""
+"""How a config key is declared: :func:`key` (its default and its one line of meaning), :func:`num` (a numeric key and
+its :class:`Range`), :func:`choice` (one of a set of values, or of a registry's names read when checked:
+:class:`RegistryNames`), and the common ranges. The schema (:mod:`slam.config.schema`) declares every key with them;
+:mod:`slam.config.validate` checks values against them."""
 
 from __future__ import annotations
 
@@ -65,19 +66,29 @@ class Range:
         return " and ".join(parts) or "any number"
 
 
-def num(default, lo=None, hi=None, lo_open=False, hi_open=False, **kw):
-    """A dataclass field with a numeric range (see :class:`Range`), checked by :func:`load_config`."""
-    meta = {"range": Range(lo, hi, lo_open, hi_open)}
+def key(default, doc: str = "", type_name: str | None = None, metadata: dict | None = None, **kw):
+    """A config key's dataclass field: ``default`` (a callable is a factory, for mutable values and sections) and its
+    one line of meaning ``doc``, which the configuration reference prints (:mod:`slam.config.reference`;
+    ``type_name``: the type it shows where the annotation says too little, e.g. ``Any``). ``metadata``: what
+    :mod:`slam.config.validate` checks (``range``, ``choices``)."""
+    meta = {**(metadata or {}), "doc": doc}
+    if type_name is not None:
+        meta["type"] = type_name
     if callable(default):
         return field(default_factory=default, metadata=meta, **kw)
     return field(default=default, metadata=meta, **kw)
 
 
-def choice(default, options: tuple | RegistryNames, **kw):
-    """A dataclass field whose value must be one of ``options`` (a :class:`RegistryNames` is read as a config is
+def num(default, lo=None, hi=None, lo_open=False, hi_open=False, doc: str = "", **kw):
+    """A numeric :func:`key` with its range (see :class:`Range`), checked by :func:`load_config`."""
+    return key(default, doc, metadata={"range": Range(lo, hi, lo_open, hi_open)}, **kw)
+
+
+def choice(default, options: tuple | RegistryNames, doc: str = "", **kw):
+    """A :func:`key` whose value must be one of ``options`` (a :class:`RegistryNames` is read as a config is
     checked)."""
     options = options if isinstance(options, RegistryNames) else tuple(options)
-    return field(default=default, metadata={"choices": options}, **kw)
+    return key(default, doc, metadata={"choices": options}, **kw)
 
 
 # every numeric key has a finite upper bound too: a value no run could use (1e30 pixels, a 1e9-iteration call) is

@@ -10,8 +10,7 @@ import math
 import re
 from typing import Any, Union, get_args, get_origin, get_type_hints
 
-from slam.config.schema import NONNEG, Config, Range
-from slam.core.losses import LossWeights
+from slam.config.schema import SECTION_RANGES, Config, Range
 from slam.errors import SlamInputError
 
 
@@ -74,10 +73,6 @@ MOVED = {
 }
 
 
-# classes defined outside this module whose every field shares one range
-_CLASS_RANGES = {LossWeights: Range(**NONNEG)}
-
-
 def _check_value(key: str, value: Any, meta, default_range: Range | None = None) -> None:
     rng: Range | None = meta.get("range", default_range)
     choices = meta.get("choices")
@@ -108,7 +103,7 @@ def _build(cls, data: dict, prefix: str = ""):
             # a partial mapping fills in from this field's own default (mapping.weights is not tracking.weights)
             v = {**dataclasses.asdict(f.default_factory()), **v}
         kwargs[k] = _coerce(v, hints[k], prefix + k)
-        _check_value(prefix + k, kwargs[k], fields_[k].metadata, _CLASS_RANGES.get(cls))
+        _check_value(prefix + k, kwargs[k], fields_[k].metadata, SECTION_RANGES.get(cls))
     return cls(**kwargs)
 
 

@@ -14,13 +14,14 @@ Each SDF term is the mean over all qualifying points pooled across the batch (ES
 The terms are named functions in :data:`LOSS_TERMS` (registered with :func:`loss_term`), and :class:`LossWeights`
 holds one weight per term under the same name: :func:`total_loss` sums ``weight * term`` over the registry in its
 order. Adding a term: a function ``f(batch: LossBatch) -> scalar tensor`` decorated with ``@loss_term("name")``
-below, and a field ``name: float = 0.0`` in :class:`LossWeights` (config keys ``tracking.weights.name`` /
-``mapping.weights.name`` follow from it).
+below, and a field ``name: float`` in :class:`LossWeights` with its one line of meaning as ``metadata={"doc": ...}``
+(config keys ``tracking.weights.name`` / ``mapping.weights.name`` follow from it; docs/configuration.md prints
+the line).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Callable
 
@@ -35,11 +36,13 @@ class LossWeights:
     values for tracking and mapping: ``slam.config.TRACKING_WEIGHTS`` / ``MAPPING_WEIGHTS``, the config keys
     ``tracking.weights`` / ``mapping.weights``)."""
 
-    fs: float
-    center: float
-    tail: float
-    depth: float
-    color: float
+    fs: float = field(metadata={"doc": "weight of the free-space term, `(s - 1)^2` of the samples in front of the "
+                                       "band, `z < D - T`"})
+    center: float = field(metadata={"doc": "weight of the SDF centre term, `(z + s T - D)^2` of the samples within "
+                                           "`0.4 T` of the depth"})
+    tail: float = field(metadata={"doc": "weight of the SDF tail term, the same of the rest of the band (within `T`)"})
+    depth: float = field(metadata={"doc": "weight of the depth term, the mean squared error of the rendered depth"})
+    color: float = field(metadata={"doc": "weight of the colour term, the mean squared error of the rendered colour"})
 
 
 def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
