@@ -1,7 +1,7 @@
 """How the SLAM scene's size grows with the box, and whether the long walk's runs grew as predicted (issue 24).
 
 For each representation it builds the scene of ``synthetic/walk`` at the box its run starts with (the same bound
-rule and first frames, ``slam.engine.system.SLAM``) and grows it the way the run does (``slam.model.growth``: whole
+rule and first frames, ``slam.engine.system.SLAM``) and grows it the way the run does (``slam.model.box_resize``: whole
 coarse cells, every field resized) in three shapes, one cell per step:
 
 * ``corridor``: one side (+x) grows, as the walk does;
@@ -47,7 +47,7 @@ def scene_at_start(representation: str):
 def grow_series(scene, cell: float, axes: tuple[str, ...], steps: int) -> list[dict]:
     """Grow ``scene`` in place by one ``cell`` on the ``+axes`` sides per step: ``[{L, parameters, field_bytes}]``
     with ``L`` the extent of the first growing axis (m)."""
-    from slam.model.growth import apply_growth, plan_growth
+    from slam.model.box_resize import apply_growth, plan_growth
     from slam.model.scene import scene_size
 
     a0 = "xyz".index(axes[0])

@@ -48,7 +48,7 @@ def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
 
     import tdfields
     from slam.config import config_from_dict
-    from slam.model.growth import fit_to_state
+    from slam.model.box_resize import fit_to_state
     from slam.model.scene import SceneModel
 
     path = Path(path)

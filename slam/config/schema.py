@@ -73,7 +73,8 @@ class FieldSpec:
 class SceneConfig:
     """Scene box and SDF model. ``bound``: ``[[x0,x1],[y0,y1],[z0,z1]]`` or ``auto`` (from the first frames'
     depth, see ``bound_auto_*``). ``marching_cubes_bound``: null = the bound. ``grow*``: a box that grows (ours,
-    slam.engine.growth; ``grow: auto`` grows an ``auto`` bound and keeps a given one; true / false: always, never)."""
+    slam.engine.growth_policy; ``grow: auto`` grows an ``auto`` bound and keeps a given one; true / false: always,
+    never)."""
 
     bound: Any = "auto"
     marching_cubes_bound: Any = None

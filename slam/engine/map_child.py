@@ -25,7 +25,7 @@ def serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from slam.engine.runtime import keep_freed_memory, set_threads
-    from slam.model.growth import apply_growth
+    from slam.model.box_resize import apply_growth
     from slam.model.scene import SceneModel
 
     set_threads(cfg.threads)
@@ -91,7 +91,7 @@ def _map_call(body: tuple, scene, keyframes, cfg, intr, device: str, gen: torch.
 def _replica(cfg, device: str, body: dict):
     """``(scene, keyframes)``: the child's replica of the parent's map and keyframe store from an ``init`` message."""
     from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.model.growth import fit_to_state
+    from slam.model.box_resize import fit_to_state
     from slam.model.scene import SceneModel
 
     scene = SceneModel(cfg, body["aabb"]).to(device)

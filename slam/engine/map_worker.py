@@ -35,7 +35,7 @@ import torch
 from slam.engine.map_process import MapProcess
 from slam.engine.wire import unpack_state
 from slam.engine.mapper import MapMoments, MapResult, keep_keyframe, map_frame
-from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
+from slam.model.box_resize import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
 
 
 @dataclass
@@ -212,7 +212,7 @@ class MapWorker:
                 self.wait_s += time.perf_counter() - t0
 
     def grow(self, lower, upper) -> ScenePads:
-        """Grow the map's box by ``lower`` / ``upper`` metres per axis (:mod:`slam.model.growth`), between calls: it
+        """Grow the map's box by ``lower`` / ``upper`` metres per axis (:mod:`slam.model.box_resize`), between calls: it
         waits for the call running, then grows the mapper's scene, the tracker's copy and the maps the pending
         calls left by the same samples, so the schedule goes on handing the tracker the maps it names, grown."""
         self.wait_idle()

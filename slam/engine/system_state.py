@@ -10,7 +10,7 @@ from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.setup import data_fingerprint, fingerprint_mismatch
 from slam.engine.state import RunState
 from slam.errors import SlamInputError
-from slam.model.growth import fit_to_state
+from slam.model.box_resize import fit_to_state
 from slam.model.scene import scene_size
 
 __all__ = ["load_system_state", "system_state"]

@@ -7,7 +7,7 @@ import torch
 import tdfields
 from tdfields.kernels.dispatch import use_backend
 from slam.config import load_config
-from slam.model.growth import apply_growth, fit_to_state, pad_state, plan_growth
+from slam.model.box_resize import apply_growth, fit_to_state, pad_state, plan_growth
 from slam.model.scene import SceneModel, scene_aabb, scene_size
 
 BOUND = "bound=[[-1,1],[-0.5,1],[0,1.5]]"

@@ -11,8 +11,8 @@ import slam.engine.tracking as tracking_mod
 from slam.config import load_config
 from slam.core.pose import matrix_to_pose
 from slam.data.types import Intrinsics
-from slam.engine.growth import SceneGrowth
-from slam.model.growth import pad_state
+from slam.engine.growth_policy import SceneGrowth
+from slam.model.box_resize import pad_state
 from tests.slam.conftest import GROWING, TINY
 
 
