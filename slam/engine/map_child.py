@@ -91,13 +91,11 @@ def _map_call(body: tuple, scene, keyframes, cfg, intr, device: str, gen: torch.
 def _replica(cfg, device: str, body: dict):
     """``(scene, keyframes)``: the child's replica of the parent's map and keyframe store from an ``init`` message."""
     from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.model.box_resize import fit_to_state
+    from slam.model.box_resize import load_scene_state
     from slam.model.scene import SceneModel
 
     scene = SceneModel(cfg, body["aabb"]).to(device)
-    with torch.no_grad():
-        fit_to_state(scene, body["scene"])
-        scene.load_state_dict(body["scene"])
+    load_scene_state(scene, body["scene"])
     keyframes = KeyframeStore.for_mapping(cfg.mapping)
     for k, color, depth, pose in body["keyframes"]:
         keyframes.add(Keyframe(k, color, depth, pose), drop=False)  # the parent's are the ones kept

@@ -35,7 +35,7 @@ import torch
 from slam.engine.map_process import MapProcess
 from slam.engine.wire import unpack_state
 from slam.engine.mapper import MapMoments, MapResult, keep_keyframe, map_frame
-from slam.model.box_resize import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
+from slam.model.box_resize import ScenePads, apply_growth, load_scene_state, pad_state, plan_growth
 
 
 @dataclass
@@ -256,9 +256,7 @@ class MapWorker:
         Raises:
             RuntimeError: the tracker's map or the carried moments do not fit this scene (another config)."""
         if state["track_scene"] is not None:
-            with torch.no_grad():
-                fit_to_state(self.track_scene, state["track_scene"])  # a grown map: its size first
-                self.track_scene.load_state_dict(state["track_scene"])
+            load_scene_state(self.track_scene, state["track_scene"])
         self._applied_any = bool(state["applied_any"])
         self.moments = MapMoments(state.get("moments"))  # a checkpoint from before the key: none carried
         self.moments.check(self.scene)
