@@ -27,7 +27,8 @@ from slam.core.pose import matrix_to_pose, pose_to_matrix
 from slam.engine.frames import FrameSource, LoadedFrame, first_readable, readable_depth
 from slam.engine.growth_policy import SceneGrowth, grow_box
 from slam.engine.keyframes import KeyframeStore
-from slam.engine.map_worker import MapJob, MapWorker
+from slam.engine.map_call import MapJob
+from slam.engine.map_worker import MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
 from slam.engine.realtime import Replay, arrival_times, take_live, take_replayed
