@@ -1,6 +1,6 @@
 """The ``lrslam`` command.
 
-Each sub-command lives next to the code it drives and registers itself here through a
+Each sub-command is one module of :mod:`slam.commands` and registers itself here through its
 ``register(subparsers)`` function, so this module stays a thin dispatcher.
 """
 
@@ -22,8 +22,8 @@ _COMMAND_MODULES = (
     "slam.commands.mesh",
     "slam.commands.sweep",
     "slam.commands.compare",
-    "slam.data.cli",
-    "slam.eval.cli",
+    "slam.commands.synth",
+    "slam.commands.eval",
 )
 
 
@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name in _COMMAND_MODULES:
         try:
             module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:  # a sub-package not built yet must not break the others
+        except ModuleNotFoundError as exc:  # a command module not built yet must not break the others
             if exc.name and exc.name.startswith(name.rsplit(".", 1)[0]):
                 continue
             raise

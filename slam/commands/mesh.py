@@ -48,7 +48,7 @@ def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
 
     import tdfields
     from slam.config import config_from_dict
-    from slam.model.growth import fit_to_state
+    from slam.model.box_resize import load_scene_state
     from slam.model.scene import SceneModel
 
     path = Path(path)
@@ -61,8 +61,7 @@ def load_run_checkpoint(path) -> tuple[Config, SceneModel, dict]:
     cfg = config_from_dict(ckpt["config"], upgrade=True)  # a checkpoint of an older version may hold moved keys
     extra = ckpt["extra"]
     scene = SceneModel(cfg, torch.tensor(extra["aabb"]))
-    fit_to_state(scene, ckpt["state_dict"])  # a map whose box grew: its levels' own grids and boxes
-    scene.load_state_dict(ckpt["state_dict"])
+    load_scene_state(scene, ckpt["state_dict"])  # a map whose box grew: its levels' own grids and boxes
     scene.eval()
     return cfg, scene, extra
 

@@ -153,6 +153,18 @@ def rotation_angle(R: torch.Tensor) -> torch.Tensor:
     return torch.arccos(((R.trace() - 1) / 2).clamp(-1.0, 1.0))
 
 
+#: metres one radian of rotation counts as in :func:`pose_distance`
+METRES_PER_RADIAN = 0.5
+
+
+def pose_distance(a: torch.Tensor, b: torch.Tensor) -> float:
+    """How far apart two cameras are, by their ``[4, 4]`` camera-to-world matrices: the distance between their
+    centres in metres plus :data:`METRES_PER_RADIAN` per radian of the rotation between them (how redundant a
+    keyframe is, how near a keyframe is to relocalise against)."""
+    angle = float(rotation_angle(a[:3, :3].T @ b[:3, :3]))
+    return float((a[:3, 3] - b[:3, 3]).norm()) + METRES_PER_RADIAN * angle
+
+
 def rotation_vector(R: torch.Tensor) -> torch.Tensor:
     """``[3, 3]`` rotation -> ``[3]`` rotation vector (axis times angle, radians), for angles well below 180 degrees
     (the inverse of :func:`exp_se3`'s rotation there)."""

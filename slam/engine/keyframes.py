@@ -9,7 +9,7 @@ from typing import Callable
 import torch
 
 from slam.core.camera import pixel_directions
-from slam.core.pose import pose_to_matrix, rotation_angle
+from slam.core.pose import pose_distance, pose_to_matrix
 from slam.engine.keyframe_spill import SpillFile, SpilledImages
 
 log = logging.getLogger(__name__)
@@ -186,10 +186,7 @@ class KeyframeStore:
         T = keyframe_matrices(self.poses())
         best, best_d = 1, float("inf")
         for i in range(1, len(self.frames) - 2):
-            a, b = T[i - 1], T[i]
-            rel = a[:3, :3].T @ b[:3, :3]
-            angle = float(rotation_angle(rel))
-            d = float((a[:3, 3] - b[:3, 3]).norm()) + 0.5 * angle
+            d = pose_distance(T[i - 1], T[i])
             if d < best_d:
                 best, best_d = i, d
         return best

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import pickle
 import signal
-import time
 import traceback
 
 import torch
 
+from slam.engine.map_call import MapJob, run_map_call
 from slam.engine.mapper import MapMoments
 from slam.engine.wire import pack_state
 
@@ -25,7 +25,7 @@ def serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from slam.engine.runtime import keep_freed_memory, set_threads
-    from slam.model.growth import apply_growth
+    from slam.model.box_resize import apply_growth
     from slam.model.scene import SceneModel
 
     set_threads(cfg.threads)
@@ -73,17 +73,12 @@ def serve(conn, cfg, intr, device: str, rehearsal: tuple | None) -> None:
 def _map_call(body: tuple, scene, keyframes, cfg, intr, device: str, gen: torch.Generator, moments) -> dict:
     """One ``map`` message: the call, its keyframe, and what the parent mirrors (the map it left, the random
     stream, the keyframes' frames and BA poses)."""
-    from slam.engine.mapper import keep_keyframe, map_frame  # at call time: tests put a faulty map_frame here
-
     k, color, depth, pose, first, keyframe, iters = body
-    color, depth = torch.from_numpy(color), torch.from_numpy(depth)
-    t0 = time.perf_counter()
-    res = map_frame(scene, k, color.to(device), depth.to(device), pose.to(device), intr, keyframes, cfg, gen,
-                    first=first, moments=moments, iters=iters)
-    keep_keyframe(keyframes, k, color, depth, pose, res, keyframe)
-    seconds = time.perf_counter() - t0
+    job = MapJob(k, torch.from_numpy(color), torch.from_numpy(depth), pose, first, keyframe, iters)
+    res, seconds, snapshot, _ = run_map_call(job, scene, keyframes, cfg, intr, gen, moments, device=device,
+                                             snapshot=pack_state)
     res.pose = res.pose.cpu()
-    return {"result": res, "seconds": seconds, "snapshot": pack_state(scene.state_dict()), "gen": gen.get_state(),
+    return {"result": res, "seconds": seconds, "snapshot": snapshot, "gen": gen.get_state(),
             "poses": keyframes.poses() if len(keyframes) else torch.zeros(0, 7),
             "indices": [kf.index for kf in keyframes.frames]}
 
@@ -91,13 +86,11 @@ def _map_call(body: tuple, scene, keyframes, cfg, intr, device: str, gen: torch.
 def _replica(cfg, device: str, body: dict):
     """``(scene, keyframes)``: the child's replica of the parent's map and keyframe store from an ``init`` message."""
     from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.model.growth import fit_to_state
+    from slam.model.box_resize import load_scene_state
     from slam.model.scene import SceneModel
 
     scene = SceneModel(cfg, body["aabb"]).to(device)
-    with torch.no_grad():
-        fit_to_state(scene, body["scene"])
-        scene.load_state_dict(body["scene"])
+    load_scene_state(scene, body["scene"])
     keyframes = KeyframeStore.for_mapping(cfg.mapping)
     for k, color, depth, pose in body["keyframes"]:
         keyframes.add(Keyframe(k, color, depth, pose), drop=False)  # the parent's are the ones kept

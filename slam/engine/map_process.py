@@ -146,7 +146,7 @@ class MapProcess:
         self._replica = True
 
     def submit(self, job) -> _Call:
-        """Queue a mapping call (a :class:`slam.engine.map_worker.MapJob`; its images travel on the CPU)."""
+        """Queue a mapping call (a :class:`slam.engine.map_call.MapJob`; its images travel on the CPU)."""
         call = _Call(self, job)
         images = pack_state({"color": job.color, "depth": job.depth})
         self._send("map", (job.k, images["color"], images["depth"], job.pose.cpu(), job.first, job.keyframe,

@@ -32,25 +32,11 @@ from dataclasses import dataclass
 
 import torch
 
+from slam.engine.map_call import MapJob, run_map_call
 from slam.engine.map_process import MapProcess
 from slam.engine.wire import unpack_state
-from slam.engine.mapper import MapMoments, MapResult, keep_keyframe, map_frame
-from slam.model.growth import ScenePads, apply_growth, fit_to_state, pad_state, plan_growth
-
-
-@dataclass
-class MapJob:
-    """One mapping call: frame position ``k``, its images ``[H, W, 3]`` / ``[H, W]`` on the device, its tracked
-    pose ``[7]``, whether it is the first-frame warm-up, whether it becomes a keyframe afterwards, and its iterations
-    (0: ``mapping.iters``; the schedule's ``need_gap_iters`` for a routine refresh)."""
-
-    k: int
-    color: torch.Tensor
-    depth: torch.Tensor
-    pose: torch.Tensor
-    first: bool
-    keyframe: bool
-    iters: int = 0
+from slam.engine.mapper import MapMoments, MapResult, keep_keyframe
+from slam.model.box_resize import ScenePads, apply_growth, load_scene_state, pad_state, plan_growth
 
 
 @dataclass
@@ -111,17 +97,10 @@ class MapWorker:
 
     # ---------------------------------------------------------------------------------------------- calls
     def _run(self, job: MapJob) -> MapDone:
-        t0 = time.perf_counter()
-        res = map_frame(self.scene, job.k, job.color, job.depth, job.pose, self.intr, self.keyframes, self.cfg,
-                        self.gen, first=job.first, should_stop=self._abort.is_set, moments=self.moments,
-                        iters=job.iters)
-        keep_keyframe(self.keyframes, job.k, job.color, job.depth, job.pose, res, job.keyframe)
-        snap = None
-        if self.parallel:
-            t1 = time.perf_counter()
-            snap = {name: t.detach().clone() for name, t in self.scene.state_dict().items()}
-            self.snapshot_s += time.perf_counter() - t1
-        seconds = time.perf_counter() - t0
+        copy_state = (lambda state: {name: t.detach().clone() for name, t in state.items()}) if self.parallel else None
+        res, seconds, snap, snap_s = run_map_call(job, self.scene, self.keyframes, self.cfg, self.intr, self.gen,
+                                                  self.moments, should_stop=self._abort.is_set, snapshot=copy_state)
+        self.snapshot_s += snap_s
         self.map_s += seconds
         self.calls += 1
         return MapDone(job, res, seconds, snap)
@@ -212,7 +191,7 @@ class MapWorker:
                 self.wait_s += time.perf_counter() - t0
 
     def grow(self, lower, upper) -> ScenePads:
-        """Grow the map's box by ``lower`` / ``upper`` metres per axis (:mod:`slam.model.growth`), between calls: it
+        """Grow the map's box by ``lower`` / ``upper`` metres per axis (:mod:`slam.model.box_resize`), between calls: it
         waits for the call running, then grows the mapper's scene, the tracker's copy and the maps the pending
         calls left by the same samples, so the schedule goes on handing the tracker the maps it names, grown."""
         self.wait_idle()
@@ -256,9 +235,7 @@ class MapWorker:
         Raises:
             RuntimeError: the tracker's map or the carried moments do not fit this scene (another config)."""
         if state["track_scene"] is not None:
-            with torch.no_grad():
-                fit_to_state(self.track_scene, state["track_scene"])  # a grown map: its size first
-                self.track_scene.load_state_dict(state["track_scene"])
+            load_scene_state(self.track_scene, state["track_scene"])
         self._applied_any = bool(state["applied_any"])
         self.moments = MapMoments(state.get("moments"))  # a checkpoint from before the key: none carried
         self.moments.check(self.scene)

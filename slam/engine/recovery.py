@@ -21,14 +21,13 @@ read only after the mapper is idle (:meth:`slam.engine.map_worker.MapWorker.wait
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
 import torch
 
 from slam.core.odometry import hold_unobserved, icp_relative_pose, pyramid, unobserved_directions
-from slam.core.pose import matrix_to_pose, pose_to_matrix
+from slam.core.pose import matrix_to_pose, pose_distance, pose_to_matrix
 from slam.core.camera import sample_pixels
 from slam.engine.tracker import TrackResult, evaluate_pose, track_frame
 from slam.engine.tracking_guard import TrackingGuard, motion
@@ -160,13 +159,10 @@ def recover(inp: TrackInput, res: TrackResult, prev: torch.Tensor, dt: float, st
 
 
 def nearest_keyframes(keyframes: list, anchor: torch.Tensor, n: int) -> list:
-    """The ``n`` keyframes whose pose is closest to ``anchor`` ``[7]`` (metres plus 0.5 m per radian, the
+    """The ``n`` keyframes whose pose is closest to ``anchor`` ``[7]`` (:func:`slam.core.pose.pose_distance`, the
     keyframe store's redundancy measure), nearest first."""
-    def dist(kf) -> float:
-        d, deg = motion(anchor, kf.pose)
-        return d + 0.5 * math.radians(deg)
-
-    return sorted(keyframes, key=dist)[:n]
+    at = pose_to_matrix(anchor.double())
+    return sorted(keyframes, key=lambda kf: pose_distance(at, pose_to_matrix(kf.pose.double())))[:n]
 
 
 def turned(pose: torch.Tensor, degrees: tuple[float, ...] = (-32.0, -24.0, -16.0, -8.0, 8.0, 16.0, 24.0, 32.0),

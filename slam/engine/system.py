@@ -25,9 +25,10 @@ import torch
 from slam.config import Config
 from slam.core.pose import matrix_to_pose, pose_to_matrix
 from slam.engine.frames import FrameSource, LoadedFrame, first_readable, readable_depth
-from slam.engine.growth import SceneGrowth, grow_box
+from slam.engine.growth_policy import SceneGrowth, grow_box
 from slam.engine.keyframes import KeyframeStore
-from slam.engine.map_worker import MapJob, MapWorker
+from slam.engine.map_call import MapJob
+from slam.engine.map_worker import MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
 from slam.engine.realtime import Replay, arrival_times, take_live, take_replayed
@@ -204,8 +205,8 @@ class SLAM:
         return True
 
     def _grow(self, k: int, depth: torch.Tensor) -> None:
-        """Grow the scene box where frame ``k``'s depth nears it (:mod:`slam.engine.growth`): every copy of the map,
-        the bound and the marching-cubes bound alike, between mapping calls."""
+        """Grow the scene box where frame ``k``'s depth nears it (:mod:`slam.engine.growth_policy`): every copy of
+        the map, the bound and the marching-cubes bound alike, between mapping calls."""
         step = self.growth.decide(k, depth, self.state.est[-1], self.intr, self.aabb)
         if step is not None:
             self.mapper.grow(step.lower, step.upper)

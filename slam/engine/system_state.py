@@ -10,7 +10,7 @@ from slam.engine.rng import rng_state, set_rng_state
 from slam.engine.setup import data_fingerprint, fingerprint_mismatch
 from slam.engine.state import RunState
 from slam.errors import SlamInputError
-from slam.model.growth import fit_to_state
+from slam.model.box_resize import load_scene_state
 from slam.model.scene import scene_size
 
 __all__ = ["load_system_state", "system_state"]
@@ -40,9 +40,7 @@ def load_system_state(s, run: dict, scene: dict) -> None:
         raise SlamInputError(f"the data differ from the checkpointed run's ({why}): resume with the same data "
                              "folder and config")
     try:
-        with torch.no_grad():
-            fit_to_state(s.scene, scene)  # a grown map: its size first
-            s.scene.load_state_dict(scene)
+        load_scene_state(s.scene, scene)
         s.mapper.load_state_dict(run)
     except RuntimeError as exc:  # missing keys or other shapes: not this config's scene
         first = str(exc).strip().splitlines()[0]

@@ -90,7 +90,7 @@ def write_frames(run, out: Path) -> None:
     tracking ran and was not taken; empty where nothing was tracked), the tracking's best loss (the depth tracking
     loss, or the colour error for colour tracking), the iterations run and the inlier share (colour: the share of the
     pixels that see the map), and the scene's parameters and field bytes after the frame: they change where the box
-    grew, :mod:`slam.engine.growth`)."""
+    grew, :mod:`slam.engine.growth_policy`)."""
     import csv
     import io
 

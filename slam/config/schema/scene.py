@@ -18,7 +18,7 @@ _BOX = "[[x0,x1],[y0,y1],[z0,z1]]"
 @dataclass
 class SceneConfig:
     """The scene box (given, or sized from the first frames' depth, and grown as the camera leaves it: ours,
-    slam.engine.growth) and the SDF model."""
+    slam.engine.growth_policy) and the SDF model."""
 
     bound: Any = key("auto", "scene box in metres, or `auto` (ours): a cube on the first camera sized from the first "
                              "frames' depth (`bound_auto_*`); ESLAM needs a box per scene", type_name=f"`auto` or {_BOX}")
@@ -35,7 +35,7 @@ class SceneConfig:
         "reads a frame's depth at the same quantile"))
     grow: Any = choice("auto", ("auto", True, False), doc=(
         "(ours) grow the box on the side where a trusted frame's depth nears it: `auto` grows an `auto` box and keeps "
-        "a given one; `true` / `false`: always / never (slam/engine/growth.py)"), type_name="`auto` or bool")
+        "a given one; `true` / `false`: always / never (slam/engine/growth_policy.py)"), type_name="`auto` or bool")
     grow_margin: float = num(0.3, lo=0, hi=1000.0, doc=(
         "(ours) metres between a frame's depth and the box that make it grow, by whole coarse cells, until the depth "
         "is this far inside again"))

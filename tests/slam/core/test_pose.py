@@ -3,7 +3,7 @@ import math
 import torch
 
 from slam.core.pose import (align_sign, constant_velocity, matrix_to_pose, matrix_to_quaternion, normalize_pose,
-                            pose_to_matrix, rotation_angle,
+                            pose_distance, pose_to_matrix, rotation_angle,
                        quaternion_to_matrix, standardize_quaternion)
 
 
@@ -89,3 +89,13 @@ def test_rotation_angle_of_known_rotations():
         assert math.isclose(float(rotation_angle(R)), a, abs_tol=1e-6)
     # rounding that pushes the trace past 3 is clamped, not NaN
     assert float(rotation_angle(torch.eye(3) * (1 + 1e-7))) == 0.0
+
+
+def test_pose_distance_counts_half_a_metre_per_radian():
+    a = math.radians(30.0)
+    T = torch.eye(4, dtype=torch.float64)
+    T[:3, :3] = torch.tensor([[1.0, 0.0, 0.0], [0.0, math.cos(a), -math.sin(a)], [0.0, math.sin(a), math.cos(a)]],
+                             dtype=torch.float64)
+    T[:3, 3] = torch.tensor([0.3, 0.0, 0.4], dtype=torch.float64)
+    assert math.isclose(pose_distance(torch.eye(4, dtype=torch.float64), T), 0.5 + 0.5 * a, rel_tol=1e-12)
+    assert math.isclose(pose_distance(T, T), 0.0, abs_tol=1e-6)

@@ -62,7 +62,7 @@ def test_the_child_starts_from_the_moments_it_is_given_and_sends_back_the_inline
 
     from slam.engine.map_process import MapProcess
     from slam.engine.wire import unpack_state
-    from slam.engine.map_worker import MapJob
+    from slam.engine.map_call import MapJob
     from slam.engine.mapper import MapMoments, map_frame
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
@@ -132,7 +132,7 @@ def test_a_failed_call_is_not_paired_with_the_next_reply(tiny_seq):
     import threading
 
     from slam.engine.map_process import MapProcess
-    from slam.engine.map_worker import MapJob
+    from slam.engine.map_call import MapJob
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
     from slam.errors import SlamRunError

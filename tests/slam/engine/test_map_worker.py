@@ -6,7 +6,7 @@ import hashlib
 import pytest
 import torch
 
-import slam.engine.map_worker as mw
+import slam.engine.mapper as mapper_mod
 import slam.engine.tracking as tracking_mod
 from slam.config import load_config
 from tests.slam.conftest import TINY
@@ -27,7 +27,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool, every: int):
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10",
                                     f"mapping.every_frame={every}", f"parallel={str(parallel).lower()}"], profile="quality")
     seen, written = {}, {}
-    real_track, real_map = tracking_mod.track_frame, mw.map_frame
+    real_track, real_map = tracking_mod.track_frame, mapper_mod.map_frame
 
     def track(scene, *a, **k):
         seen[len(s.state.est)] = _digest(scene)  # frame position being tracked
@@ -39,7 +39,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool, every: int):
         return res
 
     monkeypatch.setattr(tracking_mod, "track_frame", track)
-    monkeypatch.setattr(mw, "map_frame", mapping)
+    monkeypatch.setattr(mapper_mod, "map_frame", mapping)
     s = SLAM(cfg, load_data(cfg))
     s.run(progress=False)
     s.close()
@@ -92,7 +92,8 @@ def test_the_keyframe_mirror_takes_the_mapping_processs_drop_and_its_poses():
     poses; the loop's mirror must drop the same frame and pair each pose with its own frame, though by the poses
     it held before the reply it would have dropped another (20b7b9c kept frame 1 with frame 2's pose)."""
     from slam.engine.keyframes import Keyframe, KeyframeStore
-    from slam.engine.map_worker import MapJob, MapWorker
+    from slam.engine.map_call import MapJob
+    from slam.engine.map_worker import MapWorker
     from slam.engine.mapper import MapResult
     from slam.engine.wire import pack_state
     from slam.model.scene import SceneModel

@@ -35,10 +35,10 @@ def register(subparsers) -> None:
                         "the synthetic room uses -1.2 -1.2 0.9 1.2 1.2 2.0)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, help="write the numbers to this JSON file")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=main)
 
 
-def _run(args) -> int:
+def main(args) -> int:
     from slam.errors import SlamInputError
 
     if args.trajectory is None and args.mesh is None:

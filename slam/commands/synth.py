@@ -41,10 +41,10 @@ def register(subparsers) -> None:
                         f"{WALK_FRAMES})")
     p.add_argument("--supersample", type=int, default=argparse.SUPPRESS,
                    help=f"colour anti-aliasing rays per axis (default: {d.supersample}, the walk 1)")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=main)
 
 
-def _run(args) -> int:
+def main(args) -> int:
     from slam.data.synthetic import SynthConfig, default_sequence, generate, walk_config
 
     given = {k: getattr(args, k) for k in ("frames", "sensor_holes", "loop_frames", "supersample") if hasattr(args, k)}

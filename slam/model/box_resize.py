@@ -9,7 +9,8 @@ copied bit for bit, the new ones copy the border, so the map answers as before w
 float32 rounding of the grown boxes. :class:`ScenePads` records what each level got, so the same growth applies to
 another copy of the map (the tracker's) and to a saved ``state_dict`` of the old size (:func:`pad_state`: the maps
 pending mapping calls left); :func:`fit_to_state` shapes a freshly built scene like a saved, grown one before
-``load_state_dict`` (a resumed run, ``lrslam mesh``).
+``load_state_dict``, and :func:`load_scene_state` does both (a resumed run, the mapping process's replica,
+``lrslam mesh``).
 """
 
 from __future__ import annotations
@@ -105,3 +106,14 @@ def fit_to_state(scene: nn.Module, state: dict) -> None:
             continue
         if tuple(shape) != tuple(field.grid_shape):
             tdfields.resize(field, grid_shape=shape, aabb=box.cpu())
+
+
+def load_scene_state(scene: nn.Module, state: dict) -> None:
+    """``scene.load_state_dict(state)`` for a saved scene ``state_dict`` whose box may have grown: every level is
+    first shaped like the saved one (:func:`fit_to_state`), then takes its values.
+
+    Raises:
+        RuntimeError: ``state`` is not this scene's (``load_state_dict``'s: missing keys or other shapes)."""
+    with torch.no_grad():
+        fit_to_state(scene, state)
+        scene.load_state_dict(state)

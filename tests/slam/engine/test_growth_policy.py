@@ -7,12 +7,13 @@ import pytest
 import torch
 
 import slam.engine.map_worker as mw
+import slam.engine.mapper as mapper_mod
 import slam.engine.tracking as tracking_mod
 from slam.config import load_config
 from slam.core.pose import matrix_to_pose
 from slam.data.types import Intrinsics
-from slam.engine.growth import SceneGrowth
-from slam.model.growth import pad_state
+from slam.engine.growth_policy import SceneGrowth
+from slam.model.box_resize import pad_state
 from tests.slam.conftest import GROWING, TINY
 
 
@@ -75,7 +76,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool):
     cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10", *GROWING,
                                     f"parallel={str(parallel).lower()}"], profile="quality")
     seen, written, pending = {}, {}, []
-    real_track, real_map, real_grow = tracking_mod.track_frame, mw.map_frame, mw.MapWorker.grow
+    real_track, real_map, real_grow = tracking_mod.track_frame, mapper_mod.map_frame, mw.MapWorker.grow
 
     def track(scene, *a, **k):  # the map read, and the maps mapping calls left so far as they are now (grown)
         if len(s.state.est) not in seen:
@@ -95,7 +96,7 @@ def _run(tiny_seq, monkeypatch, parallel: bool):
         return pads
 
     monkeypatch.setattr(tracking_mod, "track_frame", track)
-    monkeypatch.setattr(mw, "map_frame", mapping)
+    monkeypatch.setattr(mapper_mod, "map_frame", mapping)
     monkeypatch.setattr(mw.MapWorker, "grow", grow)
     s = SLAM(cfg, load_data(cfg))
     s.run(progress=False)

@@ -7,7 +7,7 @@ import torch
 import tdfields
 from tdfields.kernels.dispatch import use_backend
 from slam.config import load_config
-from slam.model.growth import apply_growth, fit_to_state, pad_state, plan_growth
+from slam.model.box_resize import apply_growth, load_scene_state, pad_state, plan_growth
 from slam.model.scene import SceneModel, scene_aabb, scene_size
 
 BOUND = "bound=[[-1,1],[-0.5,1],[0,1.5]]"
@@ -68,6 +68,5 @@ def test_growth_copies_the_learned_map_and_it_answers_as_before(representation):
 
     # a fresh scene of the first size takes the grown map's shape, then loads it
     fresh = _scene(representation)
-    fit_to_state(fresh, grown)
-    fresh.load_state_dict(grown)
+    load_scene_state(fresh, grown)
     assert all(torch.equal(a, b) for a, b in zip(_query(fresh, inside), _query(scene, inside)))

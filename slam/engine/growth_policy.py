@@ -12,7 +12,7 @@ comes within ``scene.grow_margin`` metres of the box (or passes it) grows by the
 metres: a growth that would is cut to what fits, and an event says so (once per side).
 
 The growth itself is :meth:`slam.engine.map_worker.MapWorker.grow` (between mapping calls, every copy of the map
-alike; :mod:`slam.model.growth` for the fields). Every growth is an event in ``metrics.json``: the sides and cells,
+alike; :mod:`slam.model.box_resize` for the fields). Every growth is an event in ``metrics.json``: the sides and cells,
 the new box, and the scene's parameters and field bytes after it.
 """
 
