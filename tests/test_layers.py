@@ -49,6 +49,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("slam.data: loaders and the synthetic room", ("slam.data", "slam.data.*")),
     ("slam.eval: metrics", ("slam.eval", "slam.eval.*")),
     ("slam.model: the scene model and meshing", ("slam.model", "slam.model.*")),
+    ("slam.loop: loop closure (features, verification, the pose graph)", ("slam.loop", "slam.loop.*")),
     ("slam.engine: frames, tracking, mapping, the loop", ("slam.engine", "slam.engine.*")),
     ("slam.run: a run's outputs, checkpoints, a run to a folder, the viewer", ("slam.run", "slam.run.*")),
     ("slam.sweep: sweeps of runs", ("slam.sweep", "slam.sweep.*")),

@@ -36,6 +36,7 @@ from slam.config.schema import (
     DataConfig,
     EvaluationConfig,
     FieldSpec,
+    LoopsConfig,
     MappingConfig,
     MeshingConfig,
     Range,
@@ -49,6 +50,6 @@ from slam.config.schema import (
 __all__ = [
     "CONFIG_DIR", "MOVED", "config_from_dict", "list_presets", "load_config", "parse_overrides", "save_config",
     "FIELD_KINDS", "KEYFRAME_STORAGES", "MAPPING_WEIGHTS", "REPRESENTATIONS", "TRACKING_WEIGHTS", "Config",
-    "DataConfig", "EvaluationConfig", "FieldSpec", "MappingConfig", "MeshingConfig", "Range", "RenderingConfig",
+    "DataConfig", "EvaluationConfig", "FieldSpec", "LoopsConfig", "MappingConfig", "MeshingConfig", "Range", "RenderingConfig",
     "SceneConfig", "TrackingConfig", "choice", "num",
 ]

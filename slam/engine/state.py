@@ -34,6 +34,9 @@ class RunState:
     tracking: list = field(default_factory=list)  # per tracked frame: loss, iterations, inlier share
     sizes: list = field(default_factory=list)  # per processed frame: [parameters, field bytes] of the scene then
     prev_depth: torch.Tensor | None = field(default=None, repr=False, metadata={"transient": True})
+    # loops.enabled, after the last frame: every frame's loop-corrected [N, 4, 4] camera-to-world and the summary
+    corrected: object = field(default=None, repr=False, metadata={"transient": True})
+    loop_summary: dict | None = field(default=None, repr=False, metadata={"transient": True})
 
     def last_trusted(self) -> int:
         """Position of the last trusted frame (-1: none yet)."""

@@ -4,8 +4,9 @@ A frame is: sync with the mapper, read, predict, track (with recovery, :mod:`sla
 submit for mapping. Writing a run's outputs and checkpoints lives in :mod:`slam.run`, which reads the run through
 :meth:`SLAM.view` and saves and restores it through :meth:`SLAM.state_dict` / :meth:`SLAM.load_state_dict`.
 
-Frames are read ahead on a thread or in the waits for the mapper (:mod:`slam.engine.frames`); mapping runs inline
-(sequential, ESLAM's schedule) or beside the tracker (``parallel``), both deterministic (:mod:`slam.engine.map_worker`).
+Frames are read ahead (:mod:`slam.engine.frames`); mapping runs inline (ESLAM's schedule) or beside the tracker
+(``parallel``), both deterministic (:mod:`slam.engine.map_worker`); loop closure (``loops``) watches beside the
+tracker and corrects the trajectory at the end (:mod:`slam.loop`).
 
 Robustness: a frame that cannot be read is not tracked or mapped (its pose is the prediction: constant velocity
 between two trusted poses, or the previous pose); a frame without valid depth is tracked on its colour and not mapped
@@ -24,7 +25,7 @@ import torch
 
 from slam.config import Config
 from slam.core.pose import matrix_to_pose, pose_to_matrix
-from slam.engine.frames import FrameSource, LoadedFrame, first_readable, readable_depth
+from slam.engine.frames import FrameSource, LoadedFrame, first_readable
 from slam.engine.growth_policy import SceneGrowth, grow_box
 from slam.engine.keyframes import KeyframeStore
 from slam.engine.map_call import MapJob
@@ -40,7 +41,8 @@ from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live
 from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
 from slam.engine.tracking_guard import TrackingGuard
 from slam.engine.system_state import load_system_state, system_state
-from slam.engine.view import KeyframeSnapshot, RunView
+from slam.engine.view import RunView, view_of
+from slam.loop.closer import close_run_loops, loop_closer
 from slam.model.scene import SceneModel, scene_aabb, scene_size
 
 log = logging.getLogger("slam")
@@ -94,6 +96,7 @@ class SLAM:
         t0 = time.perf_counter()
         frame0 = (first.color.to(self.device), first.depth.to(self.device), matrix_to_pose(self.c2w0))
         self.mapper = None
+        self.loops = loop_closer(cfg, self.intr)
         try:  # from here on a reader thread, a mapper thread or process and a spill file exist: a failure closes them
             self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel,
                                     rehearsal=frame0 if cfg.preload_kernels else None)
@@ -103,7 +106,7 @@ class SLAM:
             raise
         self.preload_s = time.perf_counter() - t0
         self.guard = TrackingGuard(cfg.tracking)
-        self.timeline = Timeline(dt=self._dt, keyframes=self._keyframes_when_idle,
+        self.timeline = Timeline(dt=self._dt, keyframes=self.keyframes_when_idle,
                                  frame_of=lambda j: int(self.indices[j]), event=self._event)
         auto = cfg.scene.bound == "auto"  # a cube around the first camera: its half-size is the reach it was sized to
         self.growth = SceneGrowth(cfg, self._event, radius=(self.bound[0][1] - self.bound[0][0]) / 2 if auto else None)
@@ -134,7 +137,8 @@ class SLAM:
         """Frames in the run as far as the schedule knows: a live stream not ended has at least one more."""
         return len(self.indices) + (1 if self.live and not self.ds.ended else 0)
 
-    def _keyframes_when_idle(self) -> list:
+    def keyframes_when_idle(self) -> list:
+        """The keyframes, once the mapper is idle (they are the mapper's while a call runs)."""
         self.mapper.wait_idle()
         return list(self.keyframes.frames)
 
@@ -191,6 +195,8 @@ class SLAM:
             return False
         self._grow(k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
+        if self.loops is not None:  # a loop keyframe, where the camera moved (slam.loop.closer): queued, not waited
+            self.loops.offer(k, frame.color, frame.depth, pose_to_matrix(st.est[-1]).numpy(), trusted)
         first = not st.initialized
         iters = call_iters(k, st, cfg.mapping, self._n_frames())
         if iters is None:
@@ -219,12 +225,16 @@ class SLAM:
         Never on a stop: a checkpoint keeps the pending calls instead (:mod:`slam.run.checkpoint`), so a resumed run
         applies them on the frames the uninterrupted run would have."""
         self._apply(self.mapper.drain())
+        if self.loops is not None and self.state.est:
+            close_run_loops(self.loops, self.state, self.indices, pose_to_matrix(torch.stack(self.state.est)).numpy())
 
     def close(self, abort: bool = False) -> None:
         """Stop the reader and the mapper (thread or process) and delete the keyframes' spill file (it can hold
         gigabytes; the spilled images are then gone); ``abort`` (a second Ctrl-C) ends a mapping call in progress at
         its next iteration instead of waiting for it. Safe to call twice."""
         self.frames.close()
+        if self.loops is not None:
+            self.loops.close()
         if self.mapper is not None:
             self.mapper.close(abort=abort)
         self.keyframes.close()
@@ -277,17 +287,7 @@ class SLAM:
     # ----------------------------------------------------------------------------------------------- the run
     def view(self) -> RunView:
         """A read-only view of the run for outputs, checkpoints, meshing and observers."""
-        return RunView(cfg=self.cfg, device=self.device, intrinsics=self.intr, indices=tuple(self.indices),
-                       timestamps=self.timestamps, gt=self.gt, c2w0=self.c2w0, c2w0_source=self.c2w0_source,
-                       bound=self.bound, mc_bound=self.mc_bound, aabb=self.aabb, scene=self.mapper.track_scene,
-                       state=self.state, gt_mesh_path=getattr(self.ds, "gt_mesh_path", None),
-                       keyframe_count=len(self.keyframes), _keyframes=self._keyframe_snapshot,
-                       _read_depth=lambda k: readable_depth(self.ds, self.indices[k]))
-
-    def _keyframe_snapshot(self) -> KeyframeSnapshot:
-        frames = self._keyframes_when_idle()
-        poses = pose_to_matrix(self.keyframes.poses()).numpy() if frames else np.zeros((0, 4, 4))
-        return KeyframeSnapshot(tuple(kf.index for kf in frames), poses, tuple(kf.metres() for kf in frames))
+        return view_of(self)
 
     def state_dict(self) -> dict:
         """The loop's state (:func:`slam.engine.system_state.system_state`): plain tensors and numbers."""

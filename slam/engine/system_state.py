@@ -25,7 +25,8 @@ def system_state(s) -> dict:
     return {"state": s.state.state_dict(), **s.keyframes.state_dict(), **s.mapper.state_dict(),
             "guard": s.guard.state_dict(), "rng": rng_state(s.gen, s.map_gen),
             "growth": {**s.growth.state_dict(), "bound": s.bound, "mc_bound": s.mc_bound, "aabb": s.aabb.clone()},
-            "fingerprint": data_fingerprint(s.ds, s.selection)}
+            "fingerprint": data_fingerprint(s.ds, s.selection),
+            **({"loops": s.loops.state_dict()} if s.loops is not None else {})}
 
 
 def load_system_state(s, run: dict, scene: dict) -> None:
@@ -61,6 +62,10 @@ def load_system_state(s, run: dict, scene: dict) -> None:
         s.bound, s.mc_bound, s.aabb = grown["bound"], grown["mc_bound"], grown["aabb"].clone()
     s.size = scene_size(s.scene)
     set_rng_state(run["rng"], s.gen, s.map_gen)
+    if s.loops is not None and "loops" in run:
+        s.loops.load_state_dict(run["loops"])
+    elif s.loops is not None and s.state.est:
+        raise SlamInputError("the checkpoint was written without loop closure: resume it with loops.enabled=false")
 
 
 def _readable_images(s, k: int) -> tuple[torch.Tensor, torch.Tensor]:

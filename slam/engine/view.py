@@ -71,7 +71,14 @@ class RunView:
         return len(self.state.est)
 
     def poses(self) -> np.ndarray:
-        """``[done, 4, 4]`` estimated camera-to-world of the processed frames."""
+        """``[done, 4, 4]`` estimated camera-to-world of the processed frames: the trajectory a run writes, corrected
+        by the pose graph once a run with ``loops.enabled`` has ended (:mod:`slam.loop`), else :meth:`map_poses`."""
+        if self.state.corrected is not None and len(self.state.corrected) == self.done:
+            return np.asarray(self.state.corrected)
+        return self.map_poses()
+
+    def map_poses(self) -> np.ndarray:
+        """``[done, 4, 4]`` the tracker's camera-to-world (the odometry): the poses the map was built with."""
         if not self.state.est:
             return np.zeros((0, 4, 4))
         return pose_to_matrix(torch.stack(self.state.est)).numpy()
@@ -89,3 +96,19 @@ class RunView:
     def read_depth(self, k: int) -> np.ndarray | None:
         """``[H, W]`` depth in metres of processed frame ``k`` as the dataset gives it, or None if unreadable."""
         return self._read_depth(k)
+
+
+def view_of(s) -> RunView:
+    """The :class:`RunView` of ``s`` (a :class:`slam.engine.system.SLAM`)."""
+    from slam.engine.frames import readable_depth
+
+    def keyframes() -> KeyframeSnapshot:
+        frames = s.keyframes_when_idle()
+        poses = pose_to_matrix(s.keyframes.poses()).numpy() if frames else np.zeros((0, 4, 4))
+        return KeyframeSnapshot(tuple(kf.index for kf in frames), poses, tuple(kf.metres() for kf in frames))
+
+    return RunView(cfg=s.cfg, device=s.device, intrinsics=s.intr, indices=tuple(s.indices), timestamps=s.timestamps,
+                   gt=s.gt, c2w0=s.c2w0, c2w0_source=s.c2w0_source, bound=s.bound, mc_bound=s.mc_bound, aabb=s.aabb,
+                   scene=s.mapper.track_scene, state=s.state, gt_mesh_path=getattr(s.ds, "gt_mesh_path", None),
+                   keyframe_count=len(s.keyframes), _keyframes=keyframes,
+                   _read_depth=lambda k: readable_depth(s.ds, s.indices[k]))

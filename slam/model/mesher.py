@@ -174,8 +174,8 @@ def run_hull_points(run, keyframes=None) -> np.ndarray:
 def run_mesh(run, resolution: float | None = None, cull: bool | None = None) -> trimesh.Trimesh:
     """A run's mesh with its config's meshing settings (``run``: a :class:`slam.engine.view.RunView`), from the map
     the tracker reads (mid-run: the latest one the schedule has handed over; at the end: the final map): marching
-    cubes inside the visibility hull, then (unless ``cull`` is False) culled with every processed frame's estimated
-    pose, and depth where the config asks for the depth test; unreadable frames do not count as views."""
+    cubes inside the visibility hull, then (unless ``cull`` is False) culled with every processed frame's pose as the map
+    was built with it (the tracker's, :meth:`~slam.engine.view.RunView.map_poses`), and depth where the config asks for the depth test; unreadable frames do not count as views."""
     from slam.eval import cull_mesh
 
     mcfg = run.cfg.meshing
@@ -184,7 +184,7 @@ def run_mesh(run, resolution: float | None = None, cull: bool | None = None) -> 
     mesh = extract_mesh(run.scene, run.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, run.device)
     if not (mcfg.cull if cull is None else cull) or not len(mesh.faces):
         return mesh
-    poses = run.poses().copy()
+    poses = run.map_poses().copy()
     depths = None
     if mcfg.cull_depth_test:
         depths = []

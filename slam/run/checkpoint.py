@@ -41,7 +41,7 @@ def checkpoint_extra(run) -> dict:
 
     kfs = run.keyframes()
     return {
-        "poses": torch.from_numpy(run.poses()).float(),
+        "poses": torch.from_numpy(run.map_poses()).float(),
         "frame_indices": list(run.indices),
         "timestamps": [float(t) for t in run.timestamps] if run.timestamps is not None else [],
         "bound": run.bound,

@@ -22,13 +22,17 @@ log = logging.getLogger("slam")
 
 def write_trajectories(run, out: Path) -> None:
     """``trajectory.txt`` (and ``trajectory_gt.txt`` with ground truth) in TUM format, for the frames done
-    (``run``: a :class:`slam.engine.view.RunView`)."""
+    (``run``: a :class:`slam.engine.view.RunView`); after loop closure ``trajectory.txt`` is the corrected trajectory
+    and ``trajectory_odometry.txt`` the tracker's."""
     from slam import eval as seval
 
     ts = run.frame_timestamps()
     poses = run.poses()
     with replacing(out / "trajectory.txt", "trajectory") as tmp:
         seval.write_tum_trajectory(tmp, ts, poses)
+    if run.state.corrected is not None:  # loop closure ran: the tracker's own trajectory beside the corrected one
+        with replacing(out / "trajectory_odometry.txt", "odometry trajectory") as tmp:
+            seval.write_tum_trajectory(tmp, ts, run.map_poses())
     if run.gt is not None:
         with replacing(out / "trajectory_gt.txt", "ground-truth trajectory") as tmp:
             seval.write_tum_trajectory(tmp, ts, run.gt[: len(poses)].numpy())
@@ -62,6 +66,8 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
         "frames_lost": sum(1 for e in run.state.events if e.get("lost")),
         "frames_recovered": sum(1 for e in run.state.events if e.get("recovered")),
     }
+    if run.state.loop_summary is not None:
+        metrics["loops"] = run.state.loop_summary
     if cfg.data.realtime:
         from slam.engine.realtime import latency_summary
 
@@ -76,6 +82,8 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
             log.warning("ATE not computed: %s", exc)
         else:
             metrics.update(ate_rmse_m=res.rmse, ate_mean_m=res.mean, ate_median_m=res.median, ate_max_m=res.max)
+            if run.state.corrected is not None:
+                metrics["ate_odometry_rmse_m"] = seval.ate(run.map_poses(), gt).rmse
             if out is not None and plot:
                 try:
                     seval.plot_trajectory(poses, gt, out / "trajectory.png")
@@ -90,7 +98,7 @@ def write_frames(run, out: Path) -> None:
     tracking ran and was not taken; empty where nothing was tracked), the tracking's best loss (the depth tracking
     loss, or the colour error for colour tracking), the iterations run and the inlier share (colour: the share of the
     pixels that see the map), and the scene's parameters and field bytes after the frame: they change where the box
-    grew, :mod:`slam.engine.growth_policy`)."""
+    grew, :mod:`slam.engine.growth_policy`), and ``loop_with``: the dataset frame a loop closed this frame with."""
     import csv
     import io
 
@@ -102,15 +110,16 @@ def write_frames(run, out: Path) -> None:
                                    "iters": e["color_iters"], "inliers": e["color_share"]}
     buf = io.StringIO()
     w = csv.writer(buf)
+    loops = {e["frame"]: e["with_frame"] for e in st.events if e.get("event") == "loop closed"}
     w.writerow(["k", "frame", "seconds", "trusted", "tracked_on", "tracking_loss", "tracking_iters",
-                "tracking_inliers", "parameters", "field_bytes"])
+                "tracking_inliers", "parameters", "field_bytes", "loop_with"])
     for k in range(len(st.est)):
         i = int(run.indices[k])
         t = tracked.get(i, {})
         sec = st.frame_times[k] if k < len(st.frame_times) else ""
         size = (st.sizes[k] if k < len(st.sizes) else None) or ("", "")  # None: resumed from an older checkpoint
         w.writerow([k, i, f"{sec:.4f}" if sec != "" else "", int(st.trusted[k]), t.get("on", ""), t.get("loss", ""),
-                    t.get("iters", ""), t.get("inliers", ""), *size])
+                    t.get("iters", ""), t.get("inliers", ""), *size, loops.get(i, "")])
     atomic_write_text(out / "frames.csv", buf.getvalue(), "per-frame table")
 
 

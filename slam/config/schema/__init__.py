@@ -17,6 +17,7 @@ from slam.config.declare import (BIG, COUNT, FRACTION, METRES, NONNEG, POSITIVE,
                                  key, num)
 from slam.config.presets import CONFIG_DIR
 from slam.config.schema.data import DataConfig
+from slam.config.schema.loops import LoopsConfig
 from slam.config.schema.mapping import KEYFRAME_STORAGES, MappingConfig
 from slam.config.schema.output import EvaluationConfig, MeshingConfig
 from slam.config.schema.scene import FIELD_KINDS, FieldSpec, RenderingConfig, SceneConfig
@@ -27,7 +28,7 @@ from slam.core.losses import LossWeights
 # the declaration helpers and the sections are importable from here too (they were defined here)
 __all__ = ["BIG", "COUNT", "FRACTION", "FIELD_KINDS", "KEYFRAME_STORAGES", "MAPPING_WEIGHTS", "METRES", "NONNEG",
            "POSITIVE", "RATE", "REPRESENTATIONS", "SECTION_RANGES", "TRACKING_WEIGHTS", "Config", "DataConfig",
-           "EvaluationConfig", "FieldSpec", "MappingConfig", "MeshingConfig", "Range", "RegistryNames",
+           "EvaluationConfig", "FieldSpec", "LoopsConfig", "MappingConfig", "MeshingConfig", "Range", "RegistryNames",
            "RenderingConfig", "SceneConfig", "TrackingConfig", "choice", "key", "num"]
 
 
@@ -84,6 +85,8 @@ class Config:
                                                    "its result and the recovery of a lost camera.")
     mapping: MappingConfig = key(MappingConfig, "The map's optimisation: which frames are mapped, each call's keyframe "
                                                 "window and optimiser, and the keyframe store.")
+    loops: LoopsConfig = key(LoopsConfig, "Loop closure: place recognition, verification and a pose graph over "
+                                          "keyframes.")
     meshing: MeshingConfig = key(MeshingConfig, "The mesh extracted at the end of a run (and by `lrslam mesh`).")
     evaluation: EvaluationConfig = key(EvaluationConfig, "Reconstruction metrics against a ground-truth mesh.")
 

@@ -1,0 +1,51 @@
+"""Loop closure in a run: its outputs (the corrected and the odometry trajectory, the summary, frames.csv's column)
+and a resumed run that gives the uninterrupted run's loops and trajectories, byte for byte."""
+
+import csv
+import json
+
+import pytest
+
+pytest.importorskip("cv2")
+pytest.importorskip("gtsam")
+
+from tests.slam.conftest import TINY  # noqa: E402
+
+LOOPS = ["loops.enabled=true", "loops.keyframe_distance=0.02", "loops.keyframe_angle=1", "loops.min_gap_frames=6",
+         "loops.vocabulary_after=2", "loops.words=8", "data.max_frames=16"]
+
+
+def test_a_run_with_loops_writes_both_trajectories_and_resumes_to_the_same(tiny_seq, tmp_path):
+    from slam.config import load_config
+    from slam.run.runner import RunInterrupted, run_to_folder
+
+    cfg = load_config("synthetic", [*TINY, *LOOPS, f"data.path={tiny_seq}"])
+    whole = run_to_folder(cfg, tmp_path / "whole", progress=False, mesh=False)
+    assert whole["loops"]["keyframes"] >= 5
+    assert whole["loops"]["candidates_tried"] == whole["loops"]["loops"] + sum(whole["loops"]["rejected"].values())
+    assert "ate_odometry_rmse_m" in whole
+    for name in ("trajectory.txt", "trajectory_odometry.txt"):
+        assert len((tmp_path / "whole" / name).read_text().splitlines()) >= 16
+    rows = list(csv.DictReader((tmp_path / "whole" / "frames.csv").open()))
+    closed = {int(r["frame"]): int(r["loop_with"]) for r in rows if r["loop_with"]}
+    assert closed == {e["frame"]: e["with_frame"] for e in whole["events"] if e["event"] == "loop closed"}
+
+    with pytest.raises(RunInterrupted):
+        run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, stop_after=9)
+    resumed = run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, resume=True)
+    for name in ("trajectory.txt", "trajectory_odometry.txt"):
+        assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "resumed" / name).read_bytes()
+    assert json.dumps(resumed["loops"], sort_keys=True) == json.dumps(whole["loops"], sort_keys=True)
+
+
+def test_a_checkpoint_without_loops_is_not_resumed_with_them(tiny_seq, tmp_path):
+    from slam.config import load_config
+    from slam.errors import SlamInputError
+    from slam.run.runner import RunInterrupted, run_to_folder
+
+    cfg = load_config("synthetic", [*TINY, "data.max_frames=8", f"data.path={tiny_seq}"])
+    with pytest.raises(RunInterrupted):
+        run_to_folder(cfg, tmp_path, progress=False, mesh=False, stop_after=4)
+    with_loops = load_config("synthetic", [*TINY, "data.max_frames=8", f"data.path={tiny_seq}", "loops.enabled=true"])
+    with pytest.raises(SlamInputError, match="loops.enabled: False vs True"):
+        run_to_folder(with_loops, tmp_path, progress=False, mesh=False, resume=True)
