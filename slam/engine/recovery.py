@@ -113,6 +113,15 @@ def retry_iters(cfg) -> int:
     return 2 * (tc.gn_iters if tc.optimizer == "gauss_newton" else tc.iters)
 
 
+def retry_config(cfg):
+    """The config of a recovery attempt: ``cfg``, with ``tracking.recovery_optimizer: adam`` the Adam tracker."""
+    import dataclasses
+
+    if cfg.tracking.recovery_optimizer == "same" or cfg.tracking.optimizer == "adam":
+        return cfg
+    return dataclasses.replace(cfg, tracking=dataclasses.replace(cfg.tracking, optimizer="adam"))
+
+
 def recover(inp: TrackInput, res: TrackResult, prev: torch.Tensor, dt: float, starts: dict,
             prediction: torch.Tensor, event: Callable) -> tuple[TrackResult, bool, str | None]:
     """Check a tracking result; on an implausible one, track again from each of ``starts`` (name -> ``[7]``
@@ -137,9 +146,10 @@ def recover(inp: TrackInput, res: TrackResult, prev: torch.Tensor, dt: float, st
         return res, False, f"tracking lost ({'; '.join(why)}): predicted pose kept"
     v, u = _common_pixels(inp)
     cands = [("first attempt", res)]
+    retry_cfg = retry_config(cfg)
     for name, start in starts.items():
-        r = track_frame(inp.scene, inp.color, inp.depth, inp.intr, start, cfg, inp.gen,
-                        iters=retry_iters(cfg), patience=0)
+        r = track_frame(inp.scene, inp.color, inp.depth, inp.intr, start, retry_cfg, inp.gen,
+                        iters=retry_iters(retry_cfg), patience=0)
         if r.ok:
             cands.append((name, r))
     found = _best_on_common_pixels(inp, cands, lambda r: not guard.reasons(r.loss, r.inliers, prev, r.pose, dt),
@@ -233,9 +243,10 @@ def relocalise(inp: TrackInput, keyframes: list, anchor: torch.Tensor, dt: float
             starts[f"ICP against the keyframe of frame {positions(kf.index)}"] = (pose, pose)
     v, u = _common_pixels(inp)
     cands, confirmed = [], {}
+    retry_cfg = retry_config(cfg)
     for name, (start, registered) in starts.items():
-        r = track_frame(inp.scene, inp.color, inp.depth, inp.intr, start, cfg, inp.gen,
-                        iters=retry_iters(cfg), patience=0)
+        r = track_frame(inp.scene, inp.color, inp.depth, inp.intr, start, retry_cfg, inp.gen,
+                        iters=retry_iters(retry_cfg), patience=0)
         if r.ok:
             cands.append((name, r))
             if registered is not None:

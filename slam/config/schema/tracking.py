@@ -48,6 +48,9 @@ class TrackingConfig:
                                                                  "(deg/s); 0: no such check")
     recovery: bool = key(True, "(ours) track an implausible result again from several starts with twice the budget, "
                                "keeping the best plausible one (false: the frame is lost, its pose the prediction)")
+    recovery_optimizer: str = choice("same", ("same", "adam"), doc=(
+        "(ours) the optimiser of the recovery attempts: the tracker's own, or `adam` (with `optimizer: gauss_newton`: "
+        "a first-order retry where the second-order step failed, as at a fast turn into a wall)"))
     relocalize_after: int = num(5, lo=0, hi=BIG, doc=(
         "(ours) after this many frames in a row without a trusted pose (lost, unreadable or without depth), "
         "relocalise against the keyframes nearest the last trusted pose (slam/engine/recovery.py); 0: never"))

@@ -21,6 +21,9 @@ NOW = {"synthetic": ("synthetic", "quality"), "synthetic/walk": ("synthetic/walk
        "tum/fr1_desk": ("tum/fr1_desk", "paper"), "replica": ("replica", "paper"),
        "replica/room0": ("replica/room0", "paper"), "scannet": ("scannet", "paper"),
        "scannet/scene0000": ("scannet/scene0000", "paper"), **{name: (name, None) for name in ALIASES}}
+#: keys a profile has changed since 20b7b9c on purpose: Adam retries of the Gauss-Newton tracker (the walk's far turn,
+#: measured in a0137aa's message)
+CHANGED_SINCE = {"realtime": ("tracking.recovery_optimizer",)}
 #: a raw camera of each dataset kind (the sizes and focal lengths of its sensor)
 RAW = {"tum": Intrinsics(517.3, 516.5, 318.6, 255.3, 480, 640), "7scenes": Intrinsics(585.0, 585.0, 320.0, 240.0, 480, 640),
        "scannet": Intrinsics(577.6, 578.7, 318.9, 242.7, 480, 640), "replica": Intrinsics(600.0, 600.0, 599.5, 339.5, 680, 1200),
@@ -41,6 +44,7 @@ def test_every_old_preset_is_a_data_preset_and_a_profile():
         assert _camera(old["data"]["options"], kind) == _camera(new["data"]["options"], kind), old_name
         a, b = flatten(config_from_dict(old).to_dict()), flatten(new)  # as a resume reads the old: keys added since at their defaults
         inert = ("scene.grow_reach",) if new["scene"]["grow"] is False else ()  # a box that never grows
+        inert += CHANGED_SINCE.get(new["profile"], ())
         differ = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k)
                         and not k.startswith(("name", "profile", "data.options", *inert)))
         assert differ == [], old_name

@@ -161,3 +161,37 @@ def test_recovery_and_relocalisation_with_the_gauss_newton_tracker_take_twice_it
         assert caps and set(caps) == {6}
     finally:
         s.close()
+
+
+def test_a_gauss_newton_tracker_recovers_with_adam_where_asked(tiny_seq, monkeypatch):
+    """``tracking.recovery_optimizer: adam``: the recovery and relocalisation attempts of the second-order tracker are
+    Adam's, with Adam's budget (2 x ``tracking.iters``); the first attempt stays Gauss-Newton's."""
+    import slam.engine.recovery as recovery
+    import slam.engine.tracking as tracking
+    from slam.engine.recovery import retry_config
+
+    gn = load_config("synthetic", ["tracking.optimizer=gauss_newton", "tracking.recovery_optimizer=adam"],
+                     profile="quality")
+    assert retry_config(gn).tracking.optimizer == "adam" and gn.tracking.optimizer == "gauss_newton"
+    same = load_config("synthetic", ["tracking.optimizer=gauss_newton"], profile="quality")
+    assert retry_config(same) is same
+    seen, real = [], recovery.track_frame
+
+    def spy(*a, iters=None, **k):
+        seen.append((a[5].tracking.optimizer, iters))
+        return real(*a, iters=iters, **k)
+
+    monkeypatch.setattr(recovery, "track_frame", spy)
+    first, real_first = [], tracking.track_frame
+    monkeypatch.setattr(tracking, "track_frame", lambda *a, **k: first.append(a[5].tracking.optimizer) or
+                        real_first(*a, **k))
+    _make_lost(monkeypatch, lambda: s.frames.get(14).depth)
+    s = _system(tiny_seq, ["tracking.optimizer=gauss_newton", "tracking.recovery_optimizer=adam", "tracking.iters=7",
+                           "data.prefetch=0"], blank=range(8, 14))
+    try:
+        s.run(progress=False)
+        assert [e["frame"] for e in s.state.events if e.get("relocalised")] == [14]
+        assert seen and set(seen) == {("adam", 14)}
+        assert set(first) == {"gauss_newton"}
+    finally:
+        s.close()
