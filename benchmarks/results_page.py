@@ -147,6 +147,22 @@ def walk() -> str:
                 "lrslam eslam --continue --out benchmarks/results/walk_hold")])
 
 
+def walk_loops() -> str:
+    import walk_study as m
+
+    d = _json("walk_loops/walk_study.json")
+    seeds = max(r["seed"] for r in d["runs"]) + 1
+    per_seed = ", ".join(f"seed {r['seed']}: {r['ate_odometry_cm']:.2f} -> {r['ate_rmse_cm']:.2f} cm, {r['loops']} loops "
+                         f"of {r['loop_candidates']} candidates" for r in d["runs"])
+    return "\n".join([
+        "The synthetic walk at the default profile with loop closure (`loops.enabled=true`, docs/loops.md): the "
+        "tracker's ATE (odometry) and the pose graph's (ATE RMSE). Frame times are left out: the runs shared the "
+        "machine with other work.", "",
+        m.table(d["summary"], d["series"], d["stamp"], d["frames"], seeds), "", f"Per seed: {per_seed}.", "",
+        _source("walk_loops/walk_study.json", "python benchmarks/walk_study.py --frames 2100 --seeds 5 --configs "
+                "'lrslam, loops' --mesh-resolution 0.04 --out benchmarks/results/walk_loops")])
+
+
 def memory_rss() -> str:
     import memory_rss as m
 

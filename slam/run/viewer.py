@@ -9,6 +9,8 @@ What is logged, on the ``frame`` timeline (the dataset's frame index):
 * ``world/camera/image/depth``: the depth frame (``DepthImage``, uint16 millimetres, ``meter=1000``).
 * ``world/trajectory/estimated``, ``world/trajectory/ground_truth``: ``LineStrips3D`` of the camera centres
   so far (metres), growing by one point a frame; ground truth only where it is finite.
+* ``world/trajectory/corrected``, ``world/loops``: with loop closure, at the end: the corrected trajectory and a
+  segment between the two frames of each loop (``LineStrips3D``, metres).
 * ``world/mesh``: ``Mesh3D`` with vertex colours, the final mesh (and an optional preview every N keyframes).
 * ``world/scene_box``: ``Boxes3D``, the fields' box, logged at the start and again on every frame it grew.
 * ``metrics/ate_cm``: live ATE RMSE in cm (``Scalars``; frames where it is NaN are not logged);
@@ -36,6 +38,7 @@ DEFAULT_CONNECT = "rerun+http://127.0.0.1:9876/proxy"
 
 _EST_COLOR = (255, 140, 0)
 _GT_COLOR = (40, 180, 60)
+_LOOP_COLOR = (200, 40, 200)
 _LINE_RADIUS = -2.0  # negative: 2 UI points wide at any zoom, visible around a room and around a desk alike
 
 
@@ -186,9 +189,17 @@ class RerunObserver(Observer):
 
     def on_finish(self, run, metrics: dict, mesh=None) -> None:
         t0 = time.perf_counter()
+        self.rec.set_time("frame", sequence=int(run.indices[run.done - 1]))
         if mesh is not None and len(mesh.faces):
-            self.rec.set_time("frame", sequence=int(run.indices[run.done - 1]))
             self._log_mesh(mesh)
+        if run.state.corrected is not None:  # loop closure: the corrected trajectory and an edge per loop
+            pos = run.poses()[:, :3, 3]
+            at = {int(i): k for k, i in enumerate(run.indices[: run.done])}
+            edges = [[pos[at[e["frame"]]], pos[at[e["with_frame"]]]] for e in run.state.events
+                     if e.get("event") == "loop closed"]
+            self.rec.log("world/trajectory/corrected", self.rr.LineStrips3D([pos], colors=[_LOOP_COLOR],
+                                                                            radii=[_LINE_RADIUS]))
+            self.rec.log("world/loops", self.rr.LineStrips3D(edges, colors=[_LOOP_COLOR], radii=[_LINE_RADIUS]))
         self.log_s += time.perf_counter() - t0
 
     def close(self) -> None:

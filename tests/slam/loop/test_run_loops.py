@@ -21,14 +21,14 @@ def test_a_run_with_loops_writes_both_trajectories_and_resumes_to_the_same(tiny_
 
     cfg = load_config("synthetic", [*TINY, *LOOPS, f"data.path={tiny_seq}"])
     whole = run_to_folder(cfg, tmp_path / "whole", progress=False, mesh=False)
-    assert whole["loops"]["keyframes"] >= 5
+    assert whole["loops"]["keyframes"] >= 5 and whole["loops"]["loops"] >= 3  # the tiny room's camera comes back
     assert whole["loops"]["candidates_tried"] == whole["loops"]["loops"] + sum(whole["loops"]["rejected"].values())
     assert "ate_odometry_rmse_m" in whole
     for name in ("trajectory.txt", "trajectory_odometry.txt"):
         assert len((tmp_path / "whole" / name).read_text().splitlines()) >= 16
     rows = list(csv.DictReader((tmp_path / "whole" / "frames.csv").open()))
     closed = {int(r["frame"]): int(r["loop_with"]) for r in rows if r["loop_with"]}
-    assert closed == {e["frame"]: e["with_frame"] for e in whole["events"] if e["event"] == "loop closed"}
+    assert closed and closed == {e["frame"]: e["with_frame"] for e in whole["events"] if e["event"] == "loop closed"}
 
     with pytest.raises(RunInterrupted):
         run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, stop_after=9)

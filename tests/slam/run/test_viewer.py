@@ -240,3 +240,20 @@ def test_up_axis_follows_the_first_camera():
     level = torch.eye(4)
     level[:3, :3] = torch.tensor([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # camera y (down) = world -z
     assert _up_axis(level) == rr.ViewCoordinates.RIGHT_HAND_Z_UP
+
+
+def test_loop_closure_shows_the_corrected_trajectory_and_the_loops(tiny_seq, tmp_path):
+    pytest.importorskip("rerun")
+    pytest.importorskip("gtsam")
+    from slam.run.runner import run_to_folder
+    from slam.run.viewer import RerunObserver
+    from tests.slam.loop.test_run_loops import LOOPS
+
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY, *LOOPS])
+    rrd = tmp_path / "run.rrd"
+    metrics = run_to_folder(cfg, tmp_path / "run", progress=False, mesh=False, observers=[RerunObserver(save=rrd)])
+    data = read_recording(rrd)
+    corrected = data["/world/trajectory/corrected"]["LineStrips3D:strips"][-1][1][0]
+    np.testing.assert_allclose(corrected, np.loadtxt(tmp_path / "run" / "trajectory.txt")[:, 1:4], atol=1e-5)
+    edges = data["/world/loops"]["LineStrips3D:strips"][-1][1]
+    assert len(edges) == metrics["loops"]["loops"] >= 3
