@@ -10,6 +10,8 @@ All functions are pure PyTorch, keep leading batch dims ``[...]`` and are differ
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 
@@ -151,6 +153,15 @@ def rotation_angle(R: torch.Tensor) -> torch.Tensor:
     """Angle in radians (a 0-d tensor of ``R``'s dtype) of a ``[3, 3]`` rotation matrix, e.g. the relative rotation
     ``R_a^T R_b`` between two cameras; rounding beyond [-1, 1] in the trace is clamped."""
     return torch.arccos(((R.trace() - 1) / 2).clamp(-1.0, 1.0))
+
+
+def pose_gap(a, b) -> tuple[float, float]:
+    """Translation (metres) and rotation (degrees) between two ``[4, 4]`` camera-to-world transforms (tensors or
+    arrays): the distance between their centres and the angle of ``R_a^T R_b``; the translation is the norm of
+    ``a^-1 b``'s, as a pose graph measures it."""
+    a, b = torch.as_tensor(a, dtype=torch.float64), torch.as_tensor(b, dtype=torch.float64)
+    angle = math.degrees(float(rotation_angle(a[:3, :3].T @ b[:3, :3])))
+    return float((a[:3, 3] - b[:3, 3]).norm()), angle
 
 
 #: metres one radian of rotation counts as in :func:`pose_distance`

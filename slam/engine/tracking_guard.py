@@ -18,17 +18,14 @@ from collections import deque
 
 import torch
 
-from slam.core.pose import pose_to_matrix, rotation_angle
+from slam.core.pose import pose_gap, pose_to_matrix
 
 HISTORY = 10  # accepted frames whose loss makes "recent"
 
 
 def motion(prev: torch.Tensor, new: torch.Tensor) -> tuple[float, float]:
     """Translation (metres) and rotation (degrees) between two ``[7]`` camera-to-world poses."""
-    a, b = pose_to_matrix(prev.double()), pose_to_matrix(new.double())
-    rel = a[:3, :3].T @ b[:3, :3]
-    angle = math.degrees(float(rotation_angle(rel)))
-    return float((a[:3, 3] - b[:3, 3]).norm()), angle
+    return pose_gap(pose_to_matrix(prev.detach().double()), pose_to_matrix(new.detach().double()))
 
 
 class TrackingGuard:

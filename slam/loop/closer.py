@@ -15,10 +15,11 @@ from collections import Counter
 
 import numpy as np
 
+from slam.core.pose import pose_gap
 from slam.loop.correct import correct_frames
 from slam.loop.features import KeyframeFeatures, extract
 from slam.loop.graph import Edge, odometry_sigmas, optimize
-from slam.loop.verify import VerifyLimits, match, pose_gap, verify
+from slam.loop.verify import VerifyLimits, match, verify
 from slam.loop.vocabulary import Vocabulary
 
 log = logging.getLogger("slam")
@@ -38,6 +39,7 @@ class LoopCloser:
                                    min_overlap=cfg.min_overlap, max_disagreement_m=cfg.max_disagreement_m,
                                    max_disagreement_deg=cfg.max_disagreement_deg)
         self.keyframes: list[KeyframeFeatures] = []
+        self._path: list[float] = []  # the keyframes' path length from the first, metres (the drift bound grows with it)
         self.hists: list[np.ndarray | None] = []
         self.vocab: Vocabulary | None = None
         self.loops: list[dict] = []
@@ -102,6 +104,8 @@ class LoopCloser:
         cfg = self.cfg
         q = extract(k, pose, color, depth, self.intr, cfg.features)
         self.keyframes.append(q)
+        self._path.append(self._path[-1] + float(np.linalg.norm(pose[:3, 3] - self.keyframes[-2].pose[:3, 3]))
+                          if len(self.keyframes) > 1 else 0.0)
         self.hists.append(self.vocab.histogram(q.descriptors) if self.vocab is not None else None)
         if self.vocab is None and len(self.keyframes) >= cfg.vocabulary_after:
             self.vocab = Vocabulary.learn([f.descriptors for f in self.keyframes], cfg.words, self.seed)
@@ -134,14 +138,16 @@ class LoopCloser:
             # the words shortlist places; feature matches (about a millisecond each) rank them
             hits = [len(match(q, self.keyframes[j], self.limits.ratio)) for j in short]
             out += [short[o] for o in np.argsort(-np.array(hits), kind="stable")[: cfg.candidates]]
-        pos = np.array([self.keyframes[j].pose[:3, 3] for j in range(i + 1)])
-        path = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))))
-        near = []
-        for j in old:
-            gap, turn = pose_gap(self.keyframes[j].pose, q.pose)
-            if turn < 60.0 and gap <= cfg.search_radius + cfg.drift_per_metre * (path[i] - path[j]):
-                near.append((gap, j))
-        out += [j for _, j in sorted(near)[: cfg.candidates] if j not in out]
+        olds = np.array(old)
+        poses = np.stack([self.keyframes[j].pose for j in old])
+        gap = np.linalg.norm(poses[:, :3, 3] - q.pose[:3, 3], axis=1)
+        # trace(R_j^T R_q) = 1 + 2 cos(turn): the turn is under 60 degrees where it exceeds 2
+        facing = np.einsum("nab,ab->n", poses[:, :3, :3], q.pose[:3, :3]) > 2.0
+        path = np.asarray(self._path)
+        reach = cfg.search_radius + cfg.drift_per_metre * (path[i] - path[olds])
+        near = np.flatnonzero(facing & (gap <= reach))
+        out += [int(olds[o]) for o in near[np.argsort(gap[near], kind="stable")][: cfg.candidates]
+                if olds[o] not in out]
         return out
 
     # ------------------------------------------------------------------------------------------------ the end
@@ -187,6 +193,8 @@ class LoopCloser:
 
     def load_state_dict(self, d: dict) -> None:
         self.keyframes = [KeyframeFeatures.from_state_dict(f) for f in d["keyframes"]]
+        steps = [np.linalg.norm(b.pose[:3, 3] - a.pose[:3, 3]) for a, b in zip(self.keyframes, self.keyframes[1:])]
+        self._path = np.concatenate(([0.0], np.cumsum(steps))).tolist()[: len(self.keyframes)]
         self.vocab = Vocabulary.from_state_dict(d["vocab"]) if d["vocab"] is not None else None
         self.hists = [self.vocab.histogram(f.descriptors) if self.vocab is not None else None for f in self.keyframes]
         self.loops = [{**lp, "rel": lp["rel"].numpy()} for lp in d["loops"]]

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slam.core.pose import pose_gap
 from slam.loop.features import KeyframeFeatures
 from slam.loop.icp import icp
 
@@ -45,13 +46,6 @@ class Verdict:
         """The numbers of an event (JSON-ready)."""
         return {"matches": self.matches, "inliers": self.inliers, "icp_rms_m": round(self.icp_rms, 5),
                 "overlap": round(self.overlap, 3)}
-
-
-def pose_gap(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """Translation (metres) and rotation (degrees) of ``a^-1 b`` for ``[4, 4]`` rigid transforms."""
-    d = np.linalg.inv(a) @ b
-    cos = np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.linalg.norm(d[:3, 3])), float(np.degrees(np.arccos(cos)))
 
 
 def match(query: KeyframeFeatures, cand: KeyframeFeatures, ratio: float) -> np.ndarray:

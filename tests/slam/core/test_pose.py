@@ -3,8 +3,8 @@ import math
 import torch
 
 from slam.core.pose import (align_sign, constant_velocity, matrix_to_pose, matrix_to_quaternion, normalize_pose,
-                            pose_distance, pose_to_matrix, rotation_angle,
-                       quaternion_to_matrix, standardize_quaternion)
+                            pose_distance, pose_gap, pose_to_matrix, quaternion_to_matrix, rotation_angle,
+                            standardize_quaternion)
 
 
 def _rand_quats(n, seed=0):
@@ -99,3 +99,18 @@ def test_pose_distance_counts_half_a_metre_per_radian():
     T[:3, 3] = torch.tensor([0.3, 0.0, 0.4], dtype=torch.float64)
     assert math.isclose(pose_distance(torch.eye(4, dtype=torch.float64), T), 0.5 + 0.5 * a, rel_tol=1e-12)
     assert math.isclose(pose_distance(T, T), 0.0, abs_tol=1e-6)
+
+
+def test_pose_gap_is_the_relative_transform_of_a_to_b_for_tensors_and_arrays():
+    a = math.radians(30.0)
+    A = torch.eye(4, dtype=torch.float64)
+    A[:3, :3] = torch.tensor([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]],
+                             dtype=torch.float64)
+    A[:3, 3] = torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)
+    rel = torch.eye(4, dtype=torch.float64)
+    rel[:3, :3] = A[:3, :3].T  # a -30 degree turn about z
+    rel[:3, 3] = torch.tensor([0.3, 0.0, 0.4], dtype=torch.float64)
+    B = A @ rel
+    dt, dr = pose_gap(A, B)
+    assert math.isclose(dt, 0.5, rel_tol=1e-12) and math.isclose(dr, 30.0, rel_tol=1e-9)
+    assert pose_gap(A.numpy(), B.numpy()) == (dt, dr)

@@ -10,7 +10,7 @@ pytest.importorskip("gtsam")
 
 from slam.config import LoopsConfig  # noqa: E402
 from slam.loop.closer import LoopCloser  # noqa: E402
-from slam.loop.verify import pose_gap  # noqa: E402
+from slam.core.pose import pose_gap  # noqa: E402
 
 # fr1_rpy turns in place: keyframes by angle, candidates 20 frames back (the default 150 exceeds the excerpt)
 CFG = LoopsConfig(enabled=True, keyframe_angle=6.0, min_gap_frames=20, vocabulary_after=3, words=32)
@@ -95,3 +95,26 @@ def test_a_missing_dependency_is_named(monkeypatch):
     with pytest.raises(SlamInputError, match="loops.enabled needs gtsam.*loops"):
         loop_closer(cfg, None)
     assert loop_closer(load_config("synthetic"), None) is None
+
+
+def test_a_failing_worker_stops_loop_closure_and_the_run_keeps_its_poses(rpy, monkeypatch, caplog):
+    frames, gt, intr = rpy
+    closer = LoopCloser(CFG, intr, seed=0)
+    for k in range(10):
+        closer.offer(k, *frames[k], gt[k], True)
+    closer.wait()
+    made = len(closer.keyframes)
+
+    def broken(*a, **kw):
+        raise ValueError("corrupt descriptors")
+
+    monkeypatch.setattr("slam.loop.closer.extract", broken)
+    with caplog.at_level("WARNING", logger="slam"):
+        offered = [k for k in range(10, 60) if closer.offer(k, *frames[k], gt[k], True)]
+        closer.wait()
+    assert offered and closer.error == "ValueError: corrupt descriptors" and "loop closure stopped" in caplog.text
+    assert not closer.offer(59, *frames[59], gt[59], True)  # no more keyframes once stopped, and no hang
+    out, summary = closer.close_loops(gt[:60], [True] * 60)
+    closer.close()
+    assert summary["error"] == closer.error and summary["keyframes"] == made
+    assert np.array_equal(out, gt[:60])

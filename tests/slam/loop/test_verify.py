@@ -8,7 +8,8 @@ pytest.importorskip("cv2")
 
 from slam.loop.features import extract  # noqa: E402
 from slam.loop.icp import icp  # noqa: E402
-from slam.loop.verify import VerifyLimits, pose_gap, verify  # noqa: E402
+from slam.core.pose import pose_gap  # noqa: E402
+from slam.loop.verify import VerifyLimits, verify  # noqa: E402
 
 
 def _feat(rpy, k):
