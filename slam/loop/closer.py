@@ -158,7 +158,8 @@ class LoopCloser:
         self.wait()
         summary = {"keyframes": len(self.keyframes), "loops": len(self.loops), "rejected": dict(self.rejected),
                    "candidates_tried": len(self.loops) + sum(self.rejected.values()),
-                   "accepted": [{k: v for k, v in lp.items() if k != "rel"} for lp in self.loops]}
+                   "accepted": [{**{k: v for k, v in lp.items() if k != "rel"},
+                                 "relative_pose": np.round(lp["rel"], 6).tolist()} for lp in self.loops]}
         if self.error:
             summary["error"] = self.error
         poses = np.asarray(poses, np.float64)

@@ -84,12 +84,32 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
             metrics.update(ate_rmse_m=res.rmse, ate_mean_m=res.mean, ate_median_m=res.median, ate_max_m=res.max)
             if run.state.corrected is not None:
                 metrics["ate_odometry_rmse_m"] = seval.ate(run.map_poses(), gt).rmse
+            if run.state.loop_summary is not None:
+                loop_truth(run.state.loop_summary, gt)
             if out is not None and plot:
                 try:
                     seval.plot_trajectory(poses, gt, out / "trajectory.png")
                 except Exception as exc:  # plotting must not lose a run
                     log.warning("trajectory plot failed: %s", exc)
     return metrics
+
+
+def loop_truth(summary: dict, gt: np.ndarray) -> None:
+    """Each accepted loop's error against the ground truth ``gt [N, 4, 4]`` (its relative pose against the true
+    one: ``gt_error_m``, ``gt_error_deg``) and the largest in ``summary``, where both frames have ground truth:
+    how a run with ground truth shows that no loop was false."""
+    from slam.core.pose import pose_gap
+
+    errors = []
+    for lp in summary["accepted"]:
+        a, b = gt[lp["match"]], gt[lp["query"]]
+        if np.isfinite(a).all() and np.isfinite(b).all():
+            dt, dr = pose_gap(np.linalg.inv(a) @ b, np.asarray(lp["relative_pose"]))
+            lp.update(gt_error_m=round(dt, 4), gt_error_deg=round(dr, 3))
+            errors.append((dt, dr))
+    if errors:
+        summary.update(gt_error_max_m=round(max(e[0] for e in errors), 4),
+                       gt_error_max_deg=round(max(e[1] for e in errors), 3))
 
 
 def write_frames(run, out: Path) -> None:

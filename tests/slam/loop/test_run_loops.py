@@ -24,6 +24,9 @@ def test_a_run_with_loops_writes_both_trajectories_and_resumes_to_the_same(tiny_
     assert whole["loops"]["keyframes"] >= 5 and whole["loops"]["loops"] >= 3  # the tiny room's camera comes back
     assert whole["loops"]["candidates_tried"] == whole["loops"]["loops"] + sum(whole["loops"]["rejected"].values())
     assert "ate_odometry_rmse_m" in whole
+    # every loop carries its relative pose, and against the room's ground truth no loop is false
+    assert all(len(lp["relative_pose"]) == 4 and "gt_error_m" in lp for lp in whole["loops"]["accepted"])
+    assert whole["loops"]["gt_error_max_m"] < 0.05 and whole["loops"]["gt_error_max_deg"] < 2.0, whole["loops"]
     for name in ("trajectory.txt", "trajectory_odometry.txt"):
         assert len((tmp_path / "whole" / name).read_text().splitlines()) >= 16
     rows = list(csv.DictReader((tmp_path / "whole" / "frames.csv").open()))
