@@ -16,6 +16,7 @@ from skimage import measure
 
 import tdfields
 from slam.core.camera import backproject
+from slam.model.mc_grid import colored_mesh, empty_mesh, mc_grid, sample_sdf
 
 
 def hull_points(depths: list[torch.Tensor], c2ws: list[torch.Tensor], intrinsics, per_frame: int = 2000,
@@ -118,44 +119,20 @@ def extract_mesh(scene, bound, resolution: float, batch: int = 500000, hull: Hul
 
 
 def _extract(scene, bound, resolution, batch, hull, device) -> trimesh.Trimesh:
-    b = np.asarray(torch.as_tensor(bound, dtype=torch.float64).tolist())
-    lo = b[:, 0] - 0.05
-    hi = b[:, 1] + 0.05
-    n = [max(int(round((hi[a] - lo[a]) / resolution)), 2) for a in range(3)]
-    axes = [np.linspace(lo[a], hi[a], n[a]) for a in range(3)]
-    spacing = tuple((hi[a] - lo[a]) / (n[a] - 1) for a in range(3))
+    grid = mc_grid(bound, resolution)
+    n = grid.shape
     aabb = scene.aabb.detach().cpu().numpy().astype(np.float64)
-    sdf = np.empty(n[0] * n[1] * n[2], np.float32)
+    sdf = np.empty(n, np.float32)
     # iterate x-slabs so memory stays at one batch of points
     slab = max(1, batch // (n[1] * n[2]))
-    chunk = min(batch, 65536)
-    yy, zz = np.meshgrid(axes[1], axes[2], indexing="ij")
-    lines = hull.x_intervals(axes[1], axes[2]) if hull is not None else None
+    lines = hull.x_intervals(grid.axes[1], grid.axes[2]) if hull is not None else None
     for s in range(0, n[0], slab):
-        xs = axes[0][s:s + slab]
-        pts = np.stack(np.broadcast_arrays(xs[:, None, None], yy[None], zz[None]), -1).reshape(-1, 3)
-        inside = ((pts >= aabb[:, 0]) & (pts <= aabb[:, 1])).all(1)
-        if lines is not None:
-            x = xs[:, None, None]
-            inside &= ((lines[0][None] <= x) & (x <= lines[1][None])).reshape(-1)
-        vals = np.full(len(pts), -1.0, np.float32)  # outside the box or the hull: SDF -1 (not queried)
-        idx = np.nonzero(inside)[0]
-        for c in range(0, len(idx), chunk):
-            q = torch.from_numpy(pts[idx[c:c + chunk]]).float().to(device)
-            vals[idx[c:c + chunk]] = scene.sdf(q).float().cpu().numpy()
-        sdf[s * n[1] * n[2]: (s + len(xs)) * n[1] * n[2]] = vals
-    vol = sdf.reshape(n)
-    if not (vol.min() < 0 < vol.max()):
-        return trimesh.Trimesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), np.int64), process=False)
-    verts, faces, _, _ = measure.marching_cubes(vol, level=0.0, spacing=spacing, gradient_direction="ascent")
-    verts = verts + lo
-    colors = []
-    for s in range(0, len(verts), batch):
-        v = torch.from_numpy(verts[s:s + batch]).float().to(device)
-        colors.append(scene.rgb(v).clamp(0, 1).cpu().numpy())
-    rgb = (np.concatenate(colors, 0) * 255).round().astype(np.uint8)
-    rgba = np.concatenate((rgb, np.full((len(rgb), 1), 255, np.uint8)), 1)
-    return trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=rgba, process=False)
+        sdf[s:s + slab] = sample_sdf(scene, grid.axes[0][s:s + slab], grid.axes[1], grid.axes[2], aabb, lines,
+                                     min(batch, 65536), device)
+    if not (sdf.min() < 0 < sdf.max()):
+        return empty_mesh()
+    verts, faces, _, _ = measure.marching_cubes(sdf, level=0.0, spacing=grid.spacing, gradient_direction="ascent")
+    return colored_mesh(scene, verts + grid.lo, faces, batch, device)
 
 
 def run_hull_points(run, keyframes=None) -> np.ndarray:
