@@ -17,6 +17,7 @@ from skimage import measure
 import tdfields
 from slam.core.camera import backproject
 from slam.model.mc_grid import colored_mesh, empty_mesh, mc_grid, sample_sdf
+from slam.model.mesh_blocks import Observed, extract_blocks, observed_blocks, observed_voxels
 
 
 def hull_points(depths: list[torch.Tensor], c2ws: list[torch.Tensor], intrinsics, per_frame: int = 2000,
@@ -101,8 +102,10 @@ class Hull:
 
 @torch.no_grad()
 def extract_mesh(scene, bound, resolution: float, batch: int = 500000, hull: Hull | None = None,
-                 device: str | torch.device = "cpu") -> trimesh.Trimesh:
-    """Marching cubes of the scene's SDF.
+                 device: str | torch.device = "cpu", observed: Observed | None = None,
+                 block_cells: int = 0) -> trimesh.Trimesh:
+    """Marching cubes of the scene's SDF: in the blocks near ``observed`` (:mod:`slam.model.mesh_blocks`) when
+    ``block_cells > 0`` and ``observed`` is given, else over one dense volume (the reference).
 
     Args:
         scene: :class:`slam.model.scene.SceneModel`.
@@ -110,11 +113,17 @@ def extract_mesh(scene, bound, resolution: float, batch: int = 500000, hull: Hul
         resolution: grid spacing in metres; ``n_axis = round((extent + 0.1) / resolution)``.
         batch: points per SDF query.
         hull: visibility hull (points outside get SDF -1), or None.
+        observed: the voxels the keyframes observed (:func:`run_observed`), or None.
+        block_cells: cells per block edge; 0: dense.
 
     Returns:
         Coloured ``trimesh.Trimesh`` in world metres (empty when no zero crossing exists).
     """
     with tdfields.frozen(scene):  # the map is fixed while meshing: Six-axis composes its planes once
+        if block_cells > 0 and observed is not None:
+            grid = mc_grid(bound, resolution)
+            blocks = observed_blocks(observed.voxels, observed.size, grid, block_cells, observed.size)
+            return extract_blocks(scene, grid, blocks, block_cells, batch, hull, device)
         return _extract(scene, bound, resolution, batch, hull, device)
 
 
@@ -148,27 +157,46 @@ def run_hull_points(run, keyframes=None) -> np.ndarray:
                        run.cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(run.cfg.seed))
 
 
+def run_observed(run, keyframes=None) -> Observed:
+    """The voxels (edge ``scene.truncation``) holding a run's back-projected keyframe depth (every valid pixel), for
+    the block extraction; stored in the checkpoint like the hull's points.
+
+    Args:
+        run: a :class:`slam.engine.view.RunView`.
+        keyframes: its :meth:`~slam.engine.view.RunView.keyframes` snapshot, when the caller already took one.
+    """
+    kfs = run.keyframes() if keyframes is None else keyframes
+    size = run.cfg.scene.truncation
+    return Observed(observed_voxels(kfs.depths, kfs.poses, run.intrinsics, size), size)
+
+
 def run_mesh(run, resolution: float | None = None, cull: bool | None = None) -> trimesh.Trimesh:
     """A run's mesh with its config's meshing settings (``run``: a :class:`slam.engine.view.RunView`), from the map
     the tracker reads (mid-run: the latest one the schedule has handed over; at the end: the final map): marching
-    cubes inside the visibility hull, then (unless ``cull`` is False) culled with every processed frame's pose as the map
-    was built with it (the tracker's, :meth:`~slam.engine.view.RunView.map_poses`), and depth where the config asks for the depth test; unreadable frames do not count as views."""
+    cubes inside the visibility hull (in the blocks near keyframe depth unless ``meshing.block_cells`` is 0), then
+    (unless ``cull`` is False) culled with every processed frame's pose as the map was built with it (the tracker's,
+    :meth:`~slam.engine.view.RunView.map_poses`), and depth where the config asks for the depth test; unreadable
+    frames do not count as views."""
     from slam.eval import cull_mesh
 
     mcfg = run.cfg.meshing
-    pts = run_hull_points(run)  # waits for a mapping call in progress (the keyframes are the mapper's)
+    kfs = run.keyframes()  # waits for a mapping call in progress (the keyframes are the mapper's)
+    pts = run_hull_points(run, kfs)
     hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
-    mesh = extract_mesh(run.scene, run.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, run.device)
+    observed = run_observed(run, kfs) if mcfg.block_cells else None
+    mesh = extract_mesh(run.scene, run.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, run.device,
+                        observed, mcfg.block_cells)
     if not (mcfg.cull if cull is None else cull) or not len(mesh.faces):
         return mesh
-    poses = run.map_poses().copy()
-    depths = None
-    if mcfg.cull_depth_test:
-        depths = []
-        for k in range(len(poses)):
-            d = run.read_depth(k)
-            if d is None:
-                poses[k] = np.nan
-                d = np.zeros((run.intrinsics.height, run.intrinsics.width), np.float32)
-            depths.append(np.asarray(d, dtype=np.float32))
+    poses = run.map_poses()
+    depths = _views(run, len(poses)) if mcfg.cull_depth_test else None
     return cull_mesh(mesh, poses, run.intrinsics, depths=depths, truncation=run.cfg.scene.truncation)
+
+
+def _views(run, n: int):
+    """The depth maps of the first ``n`` processed frames, read one at a time (not all held at once); an unreadable
+    frame gives a map of NaN, against which no vertex counts as seen (the frame is no view), where a missing map
+    would still count its frustum."""
+    for k in range(n):
+        d = run.read_depth(k)
+        yield np.full((run.intrinsics.height, run.intrinsics.width), np.nan, np.float32) if d is None else d
