@@ -60,18 +60,28 @@ def visible_vertices(vertices, poses, intrinsics, depths: Iterable | None = None
                 raise SlamInputError(f"cull_mesh: depth map {i} is {depth.shape}, intrinsics say {(k.height, k.width)}")
         if not np.isfinite(pose).all():
             continue
-        p = (v - pose[:3, 3]) @ pose[:3, :3]
-        z = p[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = k.fx * p[:, 0] / z + k.cx
-            vv = k.fy * p[:, 1] / z + k.cy
-        m = (z > 0) & (u > 0) & (u < k.width) & (vv > 0) & (vv < k.height)
-        if depth is not None and m.any():
-            idx = np.flatnonzero(m)
-            d = _bilinear(depth, u[idx], vv[idx])
-            m[idx] = d + truncation >= z[idx]
-        seen |= m
+        for s in range(0, len(v), CHUNK):  # a chunk at a time: the temporaries stay small for a large mesh
+            seen[s:s + CHUNK] |= _in_view(v[s:s + CHUNK], pose, k, depth, truncation)
     return seen
+
+
+#: vertices projected at a time by :func:`visible_vertices`
+CHUNK = 1 << 18
+
+
+def _in_view(v: np.ndarray, pose: np.ndarray, k, depth: np.ndarray | None, truncation: float) -> np.ndarray:
+    """``[V]`` bool: the rule of :func:`visible_vertices` for the vertices ``v [V, 3]`` in one frame."""
+    p = (v - pose[:3, 3]) @ pose[:3, :3]
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = k.fx * p[:, 0] / z + k.cx
+        vv = k.fy * p[:, 1] / z + k.cy
+    m = (z > 0) & (u > 0) & (u < k.width) & (vv > 0) & (vv < k.height)
+    if depth is not None and m.any():
+        idx = np.flatnonzero(m)
+        d = _bilinear(depth, u[idx], vv[idx])
+        m[idx] = d + truncation >= z[idx]
+    return m
 
 
 def cull_mesh(mesh, poses, intrinsics, depths: Iterable | None = None, truncation: float = 0.06):

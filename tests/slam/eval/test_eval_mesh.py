@@ -119,6 +119,24 @@ def test_cull_frustum_and_occlusion():
     assert cull_mesh(far, np.stack([nan_pose, cam]), k).area == pytest.approx(16.0, rel=0.02)
 
 
+def test_visible_vertices_a_chunk_at_a_time_is_the_same_rule(monkeypatch):
+    """Vertices are projected a chunk at a time (memory); the answer must not depend on the chunk, and a depth map
+    of NaN (an unreadable frame in ``run_mesh``) sees nothing."""
+    from slam.eval import culling
+
+    rng = np.random.default_rng(0)
+    verts = rng.uniform([-2, -2, 0.5], [2, 2, 4], (5000, 3))
+    k = Intrinsics(40.0, 40.0, 31.5, 23.5, 48, 64)
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[1, :3, 3] = [0.5, 0, -1]
+    poses[2, :3, 3] = [-0.5, 0.2, 0]
+    depths = [rng.uniform(0.5, 3, (48, 64)) for _ in range(3)]
+    whole = culling.visible_vertices(verts, poses, k, depths)
+    monkeypatch.setattr(culling, "CHUNK", 333)
+    assert 0 < whole.sum() < len(verts) and np.array_equal(culling.visible_vertices(verts, poses, k, depths), whole)
+    assert not culling.visible_vertices(verts, poses[:1], k, [np.full((48, 64), np.nan)]).any()
+
+
 def test_bad_meshes(tmp_path):
     with pytest.raises(SlamInputError, match="not found"):
         reconstruction_metrics(tmp_path / "missing.ply", _plane())
