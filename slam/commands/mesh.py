@@ -19,8 +19,10 @@ def register(subparsers) -> None:
         help="re-extract a mesh from a run checkpoint",
         description=(
             "Rebuild the scene from a checkpoint written by `lrslam run` and run marching cubes over its "
-            "marching-cubes bound at --resolution. The visibility hull uses the keyframe poses and depth "
-            "from the dataset when it can still be read; otherwise the camera centres and the box only."
+            "marching-cubes bound at --resolution, in the blocks near the keyframes' depth (meshing.block_cells). "
+            "The visibility hull and those blocks come from the checkpoint; a checkpoint without them uses the "
+            "keyframe poses and depth from the dataset when it can still be read, otherwise the hull's points "
+            "or the camera centres and the box only."
         ),
     )
     p.add_argument("checkpoint", help="a run folder of `lrslam run`, or its checkpoint.pt")
@@ -28,6 +30,9 @@ def register(subparsers) -> None:
                    help="grid spacing in metres, > 0 and <= 1000 (default: the run's meshing.resolution)")
     p.add_argument("--out", default=None, help="output .ply (default: mesh_<res>.ply next to the checkpoint)")
     p.add_argument("--no-cull", action="store_true", help="skip culling against the frames' view frusta")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="meshing.KEY=VALUE",
+                   help="change one of the run's meshing settings for this mesh (repeatable; e.g. "
+                        "meshing.block_cells=0: one dense volume)")
     p.set_defaults(func=main)
 
 
@@ -77,42 +82,101 @@ def _check_resolution(resolution: float | None) -> None:
                              "leave it out for the run's meshing.resolution")
 
 
+def _with_overrides(cfg: Config, items: list[str]) -> Config:
+    """``cfg`` with ``meshing.KEY=VALUE`` overrides (validated like a run's); any other key is an input error: the
+    checkpoint's map was made with the rest."""
+    from slam.config import config_from_dict, parse_overrides
+    from slam.config.presets import deep_merge
+
+    over = parse_overrides(items)
+    if set(over) - {"meshing"}:
+        raise SlamInputError(f"lrslam mesh takes meshing.* overrides only, not {sorted(set(over) - {'meshing'})}")
+    return config_from_dict(deep_merge(cfg.to_dict(), over)) if over else cfg
+
+
+def _depths(ds, indices, bad: list):
+    """The depth maps of the dataset's frames ``indices``, read one at a time (None for an unreadable one, whose
+    index is appended to ``bad``)."""
+    from slam.engine.frames import readable_depth
+
+    for i in indices:
+        d = readable_depth(ds, i)
+        if d is None:
+            bad.append(i)
+        yield d
+
+
 def _culled(mesh, cfg: Config, ds, extra: dict, intr):
     """``mesh`` culled against the view frusta of the run's frames (the checkpoint's ``extra``: their poses and
     indices), with the depth test where the run's data (``ds``, None when it cannot be read) still reads and the
-    run's config asks for it."""
-    from slam.engine.frames import readable_depth
+    run's config asks for it (the maps read one at a time, never all held)."""
     from slam.eval import cull_mesh
 
-    depths = None
+    depths, bad = None, []
     if ds is not None and cfg.meshing.cull_depth_test:
-        depths = [readable_depth(ds, i) for i in extra["frame_indices"]]
-        bad = sum(d is None for d in depths)
-        if bad:
-            print(f"note: {bad} frame(s) of the run cannot be read: culled by their view frusta only",
-                  file=sys.stderr)
+        depths = _depths(ds, extra["frame_indices"], bad)
     elif cfg.meshing.cull_depth_test:
         print("note: the run's data cannot be read: culling by the view frusta only (no depth test)",
               file=sys.stderr)
-    return cull_mesh(mesh, extra["poses"].numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
+    mesh = cull_mesh(mesh, extra["poses"].numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
+    if bad:
+        print(f"note: {len(bad)} frame(s) of the run cannot be read: culled by their view frusta only",
+              file=sys.stderr)
+    return mesh
 
 
-def main(args) -> int:
+def _hull_points(path: Path, cfg: Config, extra: dict, ds, intr):
+    """``[P, 3]`` points of the run's visibility hull: the checkpoint's own, else back-projected from the keyframe
+    depth the data still holds, else none (with a note)."""
     import numpy as np
     import torch
 
-    from slam.files import replacing
     from slam.engine.frames import readable_depth
-    from slam.model.mesher import Hull, extract_mesh, hull_points
+    from slam.model.mesher import hull_points
+
+    kf_idx = extra.get("keyframe_indices", [])
+    kf_poses = extra.get("keyframe_poses", torch.zeros(0, 4, 4))
+    if "hull_points" in extra:  # the run's own hull: no data needed
+        return extra["hull_points"].double().numpy()
+    if ds is not None and kf_idx:
+        readable = [(torch.as_tensor(d), p) for d, p in zip((readable_depth(ds, i) for i in kf_idx), kf_poses)
+                    if d is not None]
+        return hull_points([d for d, _ in readable], [p for _, p in readable], intr,
+                           cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(cfg.seed))
+    print(f"note: {path} holds no hull points and the run's data cannot be read: meshing without the "
+          "visibility hull (the mesh may grow surfaces where no camera looked)", file=sys.stderr)
+    return np.zeros((0, 3))
+
+
+def _observed(cfg: Config, extra: dict, ds, intr, hull_pts):
+    """Where the keyframes observed surface, for the block extraction (None: mesh densely): the checkpoint's voxels,
+    else the voxels of the keyframe depth the data still holds (read one at a time), else of the hull's points (a
+    sample of that depth), else None."""
+    from slam.model.mesh_blocks import Observed, observed_voxels, voxels_of
+
+    if not cfg.meshing.block_cells:
+        return None
+    if "observed_voxels" in extra:  # the run's own: the mesh is the run's mesh
+        return Observed(extra["observed_voxels"].long().numpy(), float(extra["observed_voxel_size"]))
+    size = cfg.scene.truncation
+    kf_idx = extra.get("keyframe_indices", [])
+    if ds is not None and kf_idx:
+        return Observed(observed_voxels(_depths(ds, kf_idx, []), extra["keyframe_poses"], intr, size), size)
+    return Observed(voxels_of(hull_pts, size), size) if len(hull_pts) else None
+
+
+def main(args) -> int:
+    from slam.data.types import Intrinsics
+    from slam.files import replacing
+    from slam.model.mesher import Hull, extract_mesh
 
     _check_resolution(args.resolution)
     path = Path(args.checkpoint)
     if path.is_dir():
         path = path / "checkpoint.pt"
     cfg, scene, extra = load_run_checkpoint(path)
+    cfg = _with_overrides(cfg, args.overrides)
     res = cfg.meshing.resolution if args.resolution is None else args.resolution
-    from slam.data.types import Intrinsics
-
     intr = Intrinsics(**extra["intrinsics"])
     ds = None
     try:
@@ -121,21 +185,10 @@ def main(args) -> int:
         ds = load_data(cfg)
     except SlamInputError:
         pass
-    kf_idx = extra.get("keyframe_indices", [])
-    kf_poses = extra.get("keyframe_poses", torch.zeros(0, 4, 4))
-    if "hull_points" in extra:  # the run's own hull: no data needed
-        pts = extra["hull_points"].double().numpy()
-    elif ds is not None and kf_idx:
-        readable = [(torch.as_tensor(d), p) for d, p in zip((readable_depth(ds, i) for i in kf_idx), kf_poses)
-                    if d is not None]
-        pts = hull_points([d for d, _ in readable], [p for _, p in readable], intr,
-                          cfg.meshing.hull_points_per_frame, torch.Generator().manual_seed(cfg.seed))
-    else:
-        pts = np.zeros((0, 3))
-        print(f"note: {path} holds no hull points and the run's data cannot be read: meshing without the "
-              "visibility hull (the mesh may grow surfaces where no camera looked)", file=sys.stderr)
+    pts = _hull_points(path, cfg, extra, ds, intr)
     hull = Hull(pts, cfg.meshing.hull_scale) if len(pts) >= 4 else None
-    mesh = extract_mesh(scene, extra["marching_cubes_bound"], res, cfg.meshing.batch, hull)
+    mesh = extract_mesh(scene, extra["marching_cubes_bound"], res, cfg.meshing.batch, hull,
+                        observed=_observed(cfg, extra, ds, intr, pts), block_cells=cfg.meshing.block_cells)
     if not args.no_cull and len(mesh.faces):
         mesh = _culled(mesh, cfg, ds, extra, intr)
     out = Path(args.out) if args.out else path.parent / f"mesh_{res:g}.ply"

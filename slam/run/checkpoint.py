@@ -36,10 +36,12 @@ log = logging.getLogger("slam")
 
 def checkpoint_extra(run) -> dict:
     """What a scene checkpoint records of a run (``run``: a :class:`slam.engine.view.RunView`): poses, frames,
-    bounds, intrinsics, keyframes and the visibility hull's points (so ``lrslam mesh`` needs no data)."""
-    from slam.model.mesher import run_hull_points
+    bounds, intrinsics, keyframes, the visibility hull's points and the voxels of observed depth (so ``lrslam mesh``
+    needs no data)."""
+    from slam.model.mesher import run_hull_points, run_observed
 
     kfs = run.keyframes()
+    observed = run_observed(run, kfs)
     return {
         "poses": torch.from_numpy(run.map_poses()).float(),
         "frame_indices": list(run.indices),
@@ -51,6 +53,8 @@ def checkpoint_extra(run) -> dict:
         "keyframe_indices": [int(run.indices[k]) for k in kfs.positions],
         "keyframe_poses": torch.from_numpy(kfs.poses).float(),
         "hull_points": torch.from_numpy(run_hull_points(run, kfs)).float(),
+        "observed_voxels": torch.from_numpy(observed.voxels).int(),
+        "observed_voxel_size": observed.size,
     }
 
 

@@ -19,6 +19,10 @@ class MeshingConfig:
         "(ours, without Open3D) the mesh is extracted inside the convex hull of keyframe depth points and cameras, "
         "scaled by this about its centroid"))
     hull_points_per_frame: int = num(2000, **COUNT, doc="random valid depth pixels per keyframe in that hull")
+    block_cells: int = num(32, lo=0, hi=4096, doc=(
+        "(ours) cells per block edge: marching cubes only in the blocks within `scene.truncation` of back-projected "
+        "keyframe depth, welded on the block faces, so memory follows the surface; 0: one dense volume over the "
+        "whole marching-cubes bound (the reference)"))
     cull: bool = key(True, "remove the faces of which no processed frame saw a vertex (in front of the camera, inside "
                            "the image)")
     cull_depth_test: bool = key(True, (

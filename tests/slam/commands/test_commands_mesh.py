@@ -118,10 +118,14 @@ def test_not_a_run_checkpoint_is_an_input_error(tmp_path):
 
 @pytest.mark.slow
 def test_mesh_without_the_data_uses_the_hull_stored_in_the_checkpoint(tiny_seq, tmp_path):
-    """The run's own mesh, rebuilt by ``lrslam mesh`` after its data folder is gone, has the same geometry."""
+    """The run's own mesh, rebuilt by ``lrslam mesh`` after its data folder is gone, has the same geometry (the
+    checkpoint holds the hull's points and the observed voxels). It is a part of the dense extraction's mesh
+    (``meshing.block_cells=0``): the same surface near the keyframes' depth, none of what this barely trained map
+    has away from it."""
     import shutil
 
     import trimesh
+    from scipy.spatial import cKDTree
 
     from slam.cli import main
     from slam.run.runner import run_to_folder
@@ -137,3 +141,22 @@ def test_mesh_without_the_data_uses_the_hull_stored_in_the_checkpoint(tiny_seq, 
     b = trimesh.load(tmp_path / "m.ply", process=False)
     assert len(a.faces) > 0 and a.vertices.shape == b.vertices.shape
     assert abs(a.vertices - b.vertices).max() < 1e-6
+    assert main(["mesh", str(tmp_path / "run"), "--no-cull", "--out", str(tmp_path / "d.ply"),
+                 "--set", "meshing.block_cells=0"]) == 0
+    d = trimesh.load(tmp_path / "d.ply", process=False)
+    assert len(a.faces) < len(d.faces) and cKDTree(d.vertices).query(a.vertices)[0].max() < 1e-5
+
+
+def test_mesh_takes_meshing_overrides_only(checkpoint, tmp_path, capsys):
+    """``--set meshing.KEY=VALUE`` changes how this mesh is made (checked like a run's); the other sections made the map:
+    refused in one line, nothing written."""
+    from slam.cli import main
+
+    path, _, _ = checkpoint
+    assert main(["mesh", str(path), "--no-cull", "--out", str(tmp_path / "m.ply"), "--set", "meshing.block_cells=0",
+                 "--set=meshing.batch=1000"]) == 0
+    for bad in ("scene.truncation=0.1", "meshing.block_cells=-1"):
+        capsys.readouterr()
+        assert main(["mesh", str(path), "--no-cull", "--out", str(tmp_path / "n.ply"), "--set", bad]) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert not (tmp_path / "n.ply").exists()
