@@ -33,6 +33,15 @@ Usage::
 
 Writes ``memory_rss.json`` (per run: series, breakdown, summary; rewritten after every sample, so a stopped run
 keeps what it measured), ``memory_rss.csv`` and ``memory_rss.png``.
+
+Meshing (``--mesh RUN``): ``lrslam mesh RUN --resolution R --set meshing.block_cells=N`` for each ``--block-cells``
+value (0: the dense volume), each in a fresh process: its peak RSS (``ru_maxrss``), wall time, vertices and faces;
+then each mesh's accuracy, completion and completion ratio against the dataset's ground-truth mesh with the run's
+own protocol (:func:`slam.run.outputs.reconstruction`: the GT culled with the GT poses, ICP, the same samples).
+Writes ``mesh_rss.json``::
+
+    python benchmarks/memory_rss.py --mesh runs/walk --resolution 0.02 --block-cells 0 32 \
+        --out benchmarks/results/walk_mesh
 """
 
 from __future__ import annotations
@@ -227,6 +236,86 @@ def table(results: list[dict], st: dict, title: str) -> str:
     return "\n".join(lines)
 
 
+def mesh_one(run: str, resolution: float, cells: int, ply: str, out_json: str) -> None:
+    """``lrslam mesh`` of ``run`` in this process (a fresh one: ``ru_maxrss`` is the process's peak)."""
+    import resource
+
+    import trimesh
+
+    from slam.cli import main as cli
+
+    t0 = time.perf_counter()
+    code = cli(["mesh", run, "--resolution", str(resolution), "--out", ply, "--set", f"meshing.block_cells={cells}"])
+    wall = time.perf_counter() - t0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    m = trimesh.load(ply, process=False)
+    Path(out_json).write_text(json.dumps({"block_cells": cells, "exit": code, "wall_s": wall, "peak_rss_mb": peak,
+                                          "vertices": len(m.vertices), "faces": len(m.faces)}))
+
+
+def mesh_quality(run: str, ply: str) -> dict:
+    """Accuracy / completion of the mesh ``ply`` against the GT mesh of ``run``'s dataset, as a run scores its own
+    (:func:`slam.run.outputs.reconstruction`, with the run's frames, GT poses and depth)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import torch
+    import trimesh
+
+    from slam.commands.mesh import load_run_checkpoint
+    from slam.data.types import Intrinsics
+    from slam.engine.frames import readable_depth
+    from slam.engine.setup import load_data
+    from slam.run.outputs import reconstruction
+
+    cfg, _, extra = load_run_checkpoint(Path(run) / "checkpoint.pt")
+    ds = load_data(cfg)
+    idx = list(extra["frame_indices"])
+    view = SimpleNamespace(cfg=cfg, indices=idx, intrinsics=Intrinsics(**extra["intrinsics"]),
+                           gt=torch.as_tensor(np.asarray(ds.gt_poses), dtype=torch.float32)[idx],
+                           read_depth=lambda k: readable_depth(ds, idx[k]))
+    return reconstruction(trimesh.load(ply, process=False), ds.gt_mesh_path, view)
+
+
+def mesh_table(d: dict) -> str:
+    from _stamp import stamp_line
+
+    lines = [f"{stamp_line(d['stamp'])} `lrslam mesh` of {d['run']} at {100 * d['resolution']:g} cm, each in a fresh "
+             "process.", "",
+             "| extraction | peak RSS | wall time | vertices | faces | accuracy | completion | completion ratio (5 cm) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in d["results"]:
+        q = r["reconstruction"]
+        name = "dense" if r["block_cells"] == 0 else f"blocks of {r['block_cells']} cells"
+        lines.append(f"| {name} | {r['peak_rss_mb']:.0f} MiB | {r['wall_s']:.0f} s | {r['vertices']:,} | "
+                     f"{r['faces']:,} | {100 * q['accuracy_m']:.2f} cm | {100 * q['completion_m']:.2f} cm | "
+                     f"{100 * q['completion_ratio']:.1f} % |")
+    return "\n".join(lines)
+
+
+def mesh_main(args, out: Path) -> int:
+    """The ``--mesh`` mode (see the module docstring)."""
+    import tempfile
+
+    from _stamp import stamp
+
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for cells in args.block_cells:
+            ply, child = f"{tmp}/mesh_{cells}.ply", f"{tmp}/mesh_{cells}.json"
+            code = (f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r}); import memory_rss as m; "
+                    f"m.mesh_one({args.mesh!r}, {args.resolution!r}, {cells}, {ply!r}, {child!r})")
+            subprocess.run([sys.executable, "-c", code], check=True)
+            results.append(json.loads(Path(child).read_text()))
+        for r in results:
+            r["reconstruction"] = mesh_quality(args.mesh, f"{tmp}/mesh_{r['block_cells']}.ply")
+    d = {"stamp": stamp(), "run": args.mesh_name or Path(args.mesh).name, "resolution": args.resolution,
+         "results": results}
+    (out / "mesh_rss.json").write_text(json.dumps(d, indent=2))
+    print(mesh_table(d))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sequence", choices=("room", "tum-loop"), default="room")
@@ -237,7 +326,16 @@ def main(argv=None) -> int:
     ap.add_argument("--settings", nargs="+", default=["before", "after"], choices=list(SETTINGS))
     ap.add_argument("--presets", nargs="+", default=None, help="default: synthetic (room), tum/fr1_rpy-cpu (tum-loop)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "memory_rss"))
+    ap.add_argument("--mesh", metavar="RUN", default=None, help="meshing mode: the run folder to mesh")
+    ap.add_argument("--mesh-name", default=None, help="the run as the table names it (default: the folder's name)")
+    ap.add_argument("--resolution", type=float, default=0.02, help="meshing mode: grid spacing in metres")
+    ap.add_argument("--block-cells", type=int, nargs="+", default=[0, 32], help="meshing mode: meshing.block_cells "
+                    "values (0: dense)")
     args = ap.parse_args(argv)
+    if args.mesh:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        return mesh_main(args, out)
     if args.frames < 150:
         ap.error("--frames must be >= 150 (growth is measured after frame 100)")
     after = args.after if args.after is not None else max(100, args.frames // 10)

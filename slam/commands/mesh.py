@@ -106,22 +106,33 @@ def _depths(ds, indices, bad: list):
         yield d
 
 
-def _culled(mesh, cfg: Config, ds, extra: dict, intr):
-    """``mesh`` culled against the view frusta of the run's frames (the checkpoint's ``extra``: their poses and
-    indices), with the depth test where the run's data (``ds``, None when it cannot be read) still reads and the
-    run's config asks for it (the maps read one at a time, never all held)."""
-    from slam.eval import cull_mesh
-
-    depths, bad = None, []
+def _views(cfg: Config, ds, extra: dict, bad: list):
+    """The depth maps culling tests the run's frames with (the checkpoint's ``extra`` names them), read one at a
+    time; None where the run's data (``ds``, None when it cannot be read) is gone or the run's config asks for no
+    depth test (the view frusta only). Unreadable frames are appended to ``bad``."""
     if ds is not None and cfg.meshing.cull_depth_test:
-        depths = _depths(ds, extra["frame_indices"], bad)
-    elif cfg.meshing.cull_depth_test:
+        return _depths(ds, extra["frame_indices"], bad)
+    if cfg.meshing.cull_depth_test:
         print("note: the run's data cannot be read: culling by the view frusta only (no depth test)",
               file=sys.stderr)
-    mesh = cull_mesh(mesh, extra["poses"].numpy(), intr, depths=depths, truncation=cfg.scene.truncation)
+    return None
+
+
+def _note_unreadable(bad: list) -> None:
     if bad:
         print(f"note: {len(bad)} frame(s) of the run cannot be read: culled by their view frusta only",
               file=sys.stderr)
+
+
+def _culled(mesh, cfg: Config, ds, extra: dict, intr):
+    """``mesh`` culled against the view frusta of the run's frames (the checkpoint's ``extra``: their poses and
+    indices), with the depth test where :func:`_views` gives depth."""
+    from slam.eval import cull_mesh
+
+    bad = []
+    mesh = cull_mesh(mesh, extra["poses"].numpy(), intr, depths=_views(cfg, ds, extra, bad),
+                     truncation=cfg.scene.truncation)
+    _note_unreadable(bad)
     return mesh
 
 
@@ -168,13 +179,13 @@ def _observed(cfg: Config, extra: dict, ds, intr, hull_pts):
 def main(args) -> int:
     from slam.data.types import Intrinsics
     from slam.files import replacing
-    from slam.model.mesher import Hull, extract_mesh
 
     _check_resolution(args.resolution)
     path = Path(args.checkpoint)
     if path.is_dir():
         path = path / "checkpoint.pt"
     cfg, scene, extra = load_run_checkpoint(path)
+    extra.pop("run", None)  # the loop's state, for --resume: not needed here
     cfg = _with_overrides(cfg, args.overrides)
     res = cfg.meshing.resolution if args.resolution is None else args.resolution
     intr = Intrinsics(**extra["intrinsics"])
@@ -185,14 +196,39 @@ def main(args) -> int:
         ds = load_data(cfg)
     except SlamInputError:
         pass
-    pts = _hull_points(path, cfg, extra, ds, intr)
-    hull = Hull(pts, cfg.meshing.hull_scale) if len(pts) >= 4 else None
-    mesh = extract_mesh(scene, extra["marching_cubes_bound"], res, cfg.meshing.batch, hull,
-                        observed=_observed(cfg, extra, ds, intr, pts), block_cells=cfg.meshing.block_cells)
-    if not args.no_cull and len(mesh.faces):
-        mesh = _culled(mesh, cfg, ds, extra, intr)
     out = Path(args.out) if args.out else path.parent / f"mesh_{res:g}.ply"
     with replacing(out, "mesh") as tmp:
-        mesh.export(tmp)
-    print(f"{len(mesh.vertices)} vertices, {len(mesh.faces)} faces -> {out}")
+        nv, nf = _write_mesh(tmp, cfg, scene, extra, ds, intr, res, not args.no_cull, path)
+    print(f"{nv} vertices, {nf} faces -> {out}")
     return 0
+
+
+def _write_mesh(out: Path, cfg: Config, scene, extra: dict, ds, intr, res: float, cull: bool, path: Path):
+    """Extract, cull and write the mesh to ``out``; ``(vertices, faces)`` written. The block extraction writes a
+    PLY a chunk at a time, never holding the whole mesh."""
+    from slam.model.mesh_blocks import extract_near
+    from slam.model.mesher import Hull, extract_mesh
+
+    pts = _hull_points(path, cfg, extra, ds, intr)
+    hull = Hull(pts, cfg.meshing.hull_scale) if len(pts) >= 4 else None
+    observed = _observed(cfg, extra, ds, intr, pts)
+    del pts  # a million points for a long run: held no longer than needed
+    extra.pop("hull_points", None)
+    mcfg = cfg.meshing
+    if observed is None:
+        mesh = extract_mesh(scene, extra["marching_cubes_bound"], res, mcfg.batch, hull)
+        if cull and len(mesh.faces):
+            mesh = _culled(mesh, cfg, ds, extra, intr)
+        mesh.export(out)
+        return len(mesh.vertices), len(mesh.faces)
+    with extract_near(scene, extra["marching_cubes_bound"], res, observed, mcfg.block_cells, mcfg.batch,
+                      hull) as blocks:
+        if cull and blocks.face_count:
+            bad = []
+            blocks.cull(extra["poses"].numpy(), intr, _views(cfg, ds, extra, bad), cfg.scene.truncation)
+            _note_unreadable(bad)
+        if out.suffix.lower() == ".ply":
+            return blocks.write_ply(out, scene, mcfg.batch, "cpu")
+        mesh = blocks.trimesh(scene, mcfg.batch, "cpu")
+        mesh.export(out)
+        return len(mesh.vertices), len(mesh.faces)

@@ -28,7 +28,8 @@ def _bilinear(depth: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
             + (1 - a) * b * depth[v0 + 1, u0] + a * b * depth[v0 + 1, u0 + 1])
 
 
-def visible_vertices(vertices, poses, intrinsics, depths: Iterable | None = None, truncation: float = 0.06) -> np.ndarray:
+def visible_vertices(vertices, poses, intrinsics, depths: Iterable | None = None, truncation: float = 0.06,
+                     groups: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """``[V]`` bool: vertex seen by at least one camera.
 
     Args:
@@ -39,11 +40,16 @@ def visible_vertices(vertices, poses, intrinsics, depths: Iterable | None = None
             generator); a None entry culls that frame by its frustum only (its depth could not be read). With depths a vertex also needs ``z <= D(u, v) + truncation`` (bilinear D): it may be
             hidden by at most ``truncation`` metres.
         truncation: occlusion tolerance in metres (the TSDF truncation, 6 cm).
+        groups: optional ``(starts [G + 1], boxes [G, 2, 3])``: the vertices ``starts[g]:starts[g + 1]`` lie in the
+            box ``boxes[g]`` (min and max corners, metres); ``vertices`` is then only sliced, a range of rows at a
+            time (an array, or rows read from disk: :class:`slam.model.block_mesh.DiskRows`). A frame then projects only the groups whose box's
+            bounding ball meets its view (and, with depth, comes nearer than the frame's farthest depth plus
+            ``truncation``): the same answer, without projecting the whole mesh into every frame.
 
     A vertex is in a frame if it is in front of the camera and strictly inside the image
     (``0 < u < W``, ``0 < v < H``), the reference rule.
     """
-    v = _np(vertices).reshape(-1, 3)
+    v = _np(vertices).reshape(-1, 3) if groups is None else vertices  # groups: sliced a range at a time
     poses = _np(poses).reshape(-1, 4, 4)
     k = intrinsics
     seen = np.zeros(len(v), dtype=bool)
@@ -60,13 +66,36 @@ def visible_vertices(vertices, poses, intrinsics, depths: Iterable | None = None
                 raise SlamInputError(f"cull_mesh: depth map {i} is {depth.shape}, intrinsics say {(k.height, k.width)}")
         if not np.isfinite(pose).all():
             continue
-        for s in range(0, len(v), CHUNK):  # a chunk at a time: the temporaries stay small for a large mesh
-            seen[s:s + CHUNK] |= _in_view(v[s:s + CHUNK], pose, k, depth, truncation)
+        for a, b in ranges_in_view(len(v), groups, pose, k, depth, truncation):
+            for s in range(a, b, CHUNK):  # a chunk at a time: the temporaries stay small for a large mesh
+                e = min(s + CHUNK, b)
+                seen[s:e] |= _in_view(np.asarray(v[s:e], np.float64), pose, k, depth, truncation)
     return seen
 
 
+def ranges_in_view(n: int, groups, pose: np.ndarray, k, depth: np.ndarray | None,
+                   truncation: float) -> list:
+    """``[(start, end)]`` vertex ranges one frame (camera-to-world ``pose [4, 4]``, its ``depth [H, W]`` or None)
+    must project: all ``n``, or the runs of ``groups`` (see :func:`visible_vertices`) whose ball (the box's centre
+    and half diagonal) may hold a vertex the frame sees."""
+    if groups is None:
+        return [(0, n)]
+    starts, boxes = groups
+    centre = boxes.mean(1)
+    radius = np.linalg.norm(boxes[:, 1] - boxes[:, 0], axis=1) / 2 + 1e-4  # float32 vertices may round out
+    p = (centre - pose[:3, 3]) @ pose[:3, :3]
+    # the frustum's side planes through the camera centre, normals inward: n . p > 0 inside (0 < u < W, 0 < v < H)
+    normals = np.array([[k.fx, 0, k.cx], [-k.fx, 0, k.width - k.cx], [0, k.fy, k.cy], [0, -k.fy, k.height - k.cy]])
+    near = (p[:, 2] + radius > 0) & (p @ normals.T + radius[:, None] * np.linalg.norm(normals, axis=1) > 0).all(1)
+    if depth is not None:
+        finite = depth[np.isfinite(depth)]
+        near &= p[:, 2] - radius <= (finite.max() if finite.size else 0.0) + truncation
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], near, [False]]).astype(np.int8)))
+    return [(int(starts[a]), int(starts[b])) for a, b in zip(edges[::2], edges[1::2])]
+
+
 #: vertices projected at a time by :func:`visible_vertices`
-CHUNK = 1 << 18
+CHUNK = 1 << 16
 
 
 def _in_view(v: np.ndarray, pose: np.ndarray, k, depth: np.ndarray | None, truncation: float) -> np.ndarray:

@@ -10,10 +10,18 @@ point has the same SDF value in both.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-import trimesh
+
+if TYPE_CHECKING:  # imported where a Trimesh is made: 36 MB of modules that a streamed PLY does not need
+    import trimesh
+
+
+#: points per SDF or colour query of the block extraction at most (``meshing.batch`` may ask fewer): a colour
+#: query's temporaries take almost a kilobyte a point (57 MB at 65536 points on the walk's map)
+QUERY = 32768
 
 
 @dataclass(frozen=True)
@@ -76,14 +84,26 @@ def sample_sdf(scene, xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, aabb: np.n
 
 def empty_mesh() -> trimesh.Trimesh:
     """A mesh without vertices or faces (no zero crossing)."""
+    import trimesh
+
     return trimesh.Trimesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), np.int64), process=False)
 
 
-def colored_mesh(scene, verts: np.ndarray, faces: np.ndarray, batch: int, device) -> trimesh.Trimesh:
-    """``trimesh.Trimesh`` of ``verts [V, 3]`` (world metres) and ``faces [F, 3]`` with RGBA vertex colours from the
-    scene's RGB decoder, queried ``batch`` vertices at a time."""
+def vertex_colors(scene, verts: np.ndarray, batch: int, device) -> np.ndarray:
+    """``[V, 4]`` uint8 RGBA of ``verts [V, 3]`` (world metres) from the scene's RGB decoder (alpha 255), queried
+    ``batch`` vertices at a time (inside :func:`tdfields.frozen` the fields' composed planes serve every batch;
+    outside it a query composes only the region its vertices span)."""
     rgba = np.full((len(verts), 4), 255, np.uint8)
-    for s in range(0, len(verts), batch):
-        v = torch.from_numpy(verts[s:s + batch]).float().to(device)
-        rgba[s:s + batch, :3] = (scene.rgb(v).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
-    return trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=rgba, process=False)
+    with torch.no_grad():
+        for s in range(0, len(verts), batch):
+            v = torch.from_numpy(np.asarray(verts[s:s + batch], np.float32)).to(device)
+            rgba[s:s + batch, :3] = (scene.rgb(v).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
+    return rgba
+
+
+def colored_mesh(scene, verts: np.ndarray, faces: np.ndarray, batch: int, device) -> trimesh.Trimesh:
+    """``trimesh.Trimesh`` of ``verts [V, 3]`` (world metres) and ``faces [F, 3]`` with :func:`vertex_colors`."""
+    import trimesh
+
+    return trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=vertex_colors(scene, verts, batch, device),
+                           process=False)

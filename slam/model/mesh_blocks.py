@@ -17,12 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import trimesh
 from skimage import measure
 
-import tdfields
-from slam.core.camera import backproject
-from slam.model.mc_grid import McGrid, colored_mesh, empty_mesh, sample_sdf
+from slam.model.block_mesh import BlockMesh
+from slam.model.mc_grid import QUERY, McGrid, mc_grid, sample_sdf
 
 
 @dataclass(frozen=True)
@@ -38,9 +36,8 @@ class Observed:
 def voxels_of(points: np.ndarray, size: float) -> np.ndarray:
     """``[M, 3]`` int64 distinct voxels ``floor(p / size)`` of ``points [P, 3]`` (metres), voxel edge ``size``
     metres, sorted."""
-    if not len(points):
-        return np.zeros((0, 3), np.int64)
-    return np.unique(np.floor(np.asarray(points, np.float64) / size).astype(np.int64), axis=0)
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    return _unpack(np.unique(_pack(np.floor(points[np.isfinite(points).all(1)] / size))))
 
 
 def observed_voxels(depths, c2ws, intrinsics, size: float) -> np.ndarray:
@@ -55,16 +52,33 @@ def observed_voxels(depths, c2ws, intrinsics, size: float) -> np.ndarray:
         ``[M, 3]`` int64 voxel indices (the voxel ``v`` spans ``[v size, (v + 1) size)`` metres), sorted.
     """
     k = intrinsics
-    found = []
-    for D, T in zip(depths, c2ws):
+    found = [np.zeros(0, np.int64)]
+    for i, (D, T) in enumerate(zip(depths, c2ws)):
         if D is None:
             continue
-        D = torch.as_tensor(D).detach().cpu().float()
-        T = torch.as_tensor(T).detach().cpu().double()
-        v, u = torch.nonzero(D > 0, as_tuple=True)
-        cam = backproject(u.double(), v.double(), D[v, u].double(), k.fx, k.fy, k.cx, k.cy)
-        found.append(voxels_of((cam @ T[:3, :3].T + T[:3, 3]).numpy(), size))
-    return np.unique(np.concatenate(found), axis=0) if found else np.zeros((0, 3), np.int64)
+        D = torch.as_tensor(D).detach().cpu().numpy().astype(np.float64)  # numpy: a small map, no thread pool
+        T = torch.as_tensor(T).detach().cpu().numpy().astype(np.float64)
+        v, u = np.nonzero(D > 0)
+        z = D[v, u]
+        cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], 1)  # slam.core.camera.backproject
+        found.append(np.unique(_pack(np.floor((cam @ T[:3, :3].T + T[:3, 3]) / size))))
+        if i % 64 == 63:  # merge now and then: frames of one place repeat each other's voxels
+            found = [np.unique(np.concatenate(found))]
+    return _unpack(np.unique(np.concatenate(found)))
+
+
+#: voxel indices packed into one int64 (21 bits an axis, offset to be non-negative): +-1e6 voxels, +-60 km at 6 cm
+_BITS, _OFFSET = 21, 1 << 20
+
+
+def _pack(v: np.ndarray) -> np.ndarray:
+    v = np.clip(v, -_OFFSET, _OFFSET - 1).astype(np.int64) + _OFFSET
+    return (v[:, 0] << 2 * _BITS) | (v[:, 1] << _BITS) | v[:, 2]
+
+
+def _unpack(keys: np.ndarray) -> np.ndarray:
+    mask = (1 << _BITS) - 1
+    return np.stack([keys >> 2 * _BITS, (keys >> _BITS) & mask, keys & mask], 1) - _OFFSET
 
 
 def observed_blocks(voxels: np.ndarray, size: float, grid: McGrid, cells: int, radius: float) -> np.ndarray:
@@ -89,72 +103,65 @@ def observed_blocks(voxels: np.ndarray, size: float, grid: McGrid, cells: int, r
     return np.stack([keys // (nb[1] * nb[2]), keys // nb[2] % nb[1], keys % nb[2]], 1)
 
 
+def extract_near(scene, bound, resolution: float, observed: Observed, cells: int, batch: int = 500000, hull=None,
+                 device: str | torch.device = "cpu") -> BlockMesh:
+    """:func:`extract_blocks` of the blocks of the grid over ``bound`` (:func:`slam.model.mc_grid.mc_grid` at
+    ``resolution``) within ``observed.size`` of an observed voxel."""
+    grid = mc_grid(bound, resolution)
+    blocks = observed_blocks(observed.voxels, observed.size, grid, cells, observed.size)
+    return extract_blocks(scene, grid, blocks, cells, batch, hull, device)
+
+
 @torch.no_grad()
 def extract_blocks(scene, grid: McGrid, blocks: np.ndarray, cells: int, batch: int = 500000, hull=None,
-                   device: str | torch.device = "cpu") -> trimesh.Trimesh:
-    """Marching cubes of the scene's SDF in ``blocks`` (``[K, 3]`` of :func:`observed_blocks`) of ``grid``, welded
-    into one mesh and coloured.
+                   device: str | torch.device = "cpu") -> BlockMesh:
+    """Marching cubes of the scene's SDF in ``blocks`` (``[K, 3]`` of :func:`observed_blocks`) of ``grid``.
 
     Args:
-        scene: :class:`slam.model.scene.SceneModel`; cells: cells per block edge; batch: points per SDF and colour
-            query; hull: :class:`slam.model.mesher.Hull` (points outside get SDF -1) or None.
+        scene: :class:`slam.model.scene.SceneModel`; cells: cells per block edge; batch: points per SDF query;
+            hull: :class:`slam.model.mesher.Hull` (points outside get SDF -1) or None.
 
     Returns:
-        Coloured ``trimesh.Trimesh`` in world metres (empty when no zero crossing exists in the blocks).
+        The blocks' mesh, closed (welded), not yet culled or coloured: use it as a context manager.
     """
-    with tdfields.frozen(scene):  # the map is fixed while meshing: Six-axis composes its planes once
+    out = BlockMesh()
+    try:
+        # not inside tdfields.frozen: a frozen Six-axis field caches its whole composed planes (over 100 MB for the
+        # walk's appearance); a block's query composes only the region it spans
         aabb = scene.aabb.detach().cpu().numpy().astype(np.float64)
         lines = hull.x_intervals(grid.axes[1], grid.axes[2]) if hull is not None else None
-        weld = _Welder(grid)
         for b in blocks:
             box = [slice(int(i) * cells, min((int(i) + 1) * cells, n - 1) + 1) for i, n in zip(b, grid.shape)]
             block_lines = None if lines is None else (lines[0][box[1], box[2]], lines[1][box[1], box[2]])
-            sdf = sample_sdf(scene, *(a[s] for a, s in zip(grid.axes, box)), aabb, block_lines,
-                             min(batch, 65536), device)
+            sdf = sample_sdf(scene, *(a[s] for a, s in zip(grid.axes, box)), aabb, block_lines, min(batch, QUERY),
+                             device)
             if sdf.min() < 0 < sdf.max():
-                verts, faces, _, _ = measure.marching_cubes(sdf, level=0.0, gradient_direction="ascent")
-                weld.add(verts, faces, np.array([s.start for s in box]), np.array(sdf.shape) - 1)
-        if not weld.faces:
-            return empty_mesh()
-        verts, faces = weld.result()
-        return colored_mesh(scene, verts, faces, batch, device)
+                local, faces, _, _ = measure.marching_cubes(sdf, level=0.0, gradient_direction="ascent")
+                start = np.array([s.start for s in box])
+                rows, keys = edge_keys(local, start, np.array(sdf.shape) - 1, grid.shape)
+                corners = np.array([[a[s][0], a[s][-1]] for a, s in zip(grid.axes, box)]).T
+                out.add(grid.lo + (local.astype(np.float64) + start) * grid.spacing, faces, corners, rows, keys)
+        out.close()
+    except BaseException:
+        out.__exit__(None, None, None)
+        raise
+    return out
 
 
-class _Welder:
-    """The blocks' vertices and faces, gathered compactly: a vertex on a block's face (where a neighbour makes the
-    same one) is stored once, found again by the key of its grid edge."""
+def edge_keys(local: np.ndarray, start: np.ndarray, extent: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices of one block that lie on the block's faces, and the keys of their grid edges.
 
-    def __init__(self, grid: McGrid):
-        self.grid = grid
-        self.shape = np.array(grid.shape, np.int64)
-        self.verts: list[np.ndarray] = []
-        self.faces: list[np.ndarray] = []
-        self.count = 0
-        self.seen: dict[int, int] = {}  # edge key -> vertex index, for the vertices on block faces
+    Args:
+        local: ``[V, 3]`` marching-cubes vertices in sample units from the block's first sample ``start [3]``
+            (skimage, spacing 1, puts every vertex on a grid edge: all its coordinates but the edge's are whole
+            numbers, exactly); extent: ``[3]`` the block's samples per axis minus one; shape: the grid's samples.
 
-    def add(self, local: np.ndarray, faces: np.ndarray, start: np.ndarray, extent: np.ndarray) -> None:
-        """One block's marching cubes: ``local [V, 3]`` vertices in sample units from the block's first sample
-        ``start [3]``, the block ``extent [3]`` samples minus one, ``faces [F, 3]``. skimage (spacing 1) puts every
-        vertex on a grid edge: all its coordinates but the edge's are whole numbers, exactly."""
-        whole = local == np.round(local)
-        rows = np.flatnonzero((whole & ((local == 0) | (local == extent))).any(1))
-        low = np.floor(local[rows]).astype(np.int64) + start  # the edge's low end in grid samples
-        axis = np.where(whole[rows].all(1), 3, np.argmin(whole[rows], 1))  # 3: the vertex is a sample itself
-        keys = (((low[:, 0] * self.shape[1] + low[:, 1]) * self.shape[2] + low[:, 2]) * 4 + axis).tolist()
-        index = np.full(len(local), -1, np.int64)
-        index[rows] = [self.seen.get(k, -1) for k in keys]
-        new = index < 0
-        index[new] = np.arange(self.count, self.count + int(new.sum()))
-        self.count += int(new.sum())
-        for r, k in zip(rows.tolist(), keys):
-            self.seen.setdefault(k, int(index[r]))
-        self.verts.append(self.grid.lo + (local[new].astype(np.float64) + start) * self.grid.spacing)
-        self.faces.append(index[faces].astype(np.int32 if self.count < 2 ** 31 else np.int64))
-
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(verts [V, 3] float64 metres, faces [F, 3] int64)`` of all blocks added."""
-        verts = np.concatenate(self.verts)
-        self.verts = []
-        faces = np.concatenate(self.faces).astype(np.int64)
-        self.faces = []
-        return verts, faces
+    Returns:
+        ``(rows [S], keys [S])``: indices into ``local`` and int64 keys, equal exactly for the same grid edge (its
+        low end's grid index and its axis; axis 3: the vertex is a sample itself).
+    """
+    whole = local == np.round(local)
+    rows = np.flatnonzero((whole & ((local == 0) | (local == extent))).any(1))
+    low = np.floor(local[rows]).astype(np.int64) + start  # the edge's low end in grid samples
+    axis = np.where(whole[rows].all(1), 3, np.argmin(whole[rows], 1))
+    return rows, ((low[:, 0] * shape[1] + low[:, 1]) * shape[2] + low[:, 2]) * 4 + axis

@@ -8,16 +8,20 @@ its centroid. Containment is a vectorised half-space test on the hull's facet eq
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import torch
-import trimesh
 from scipy.spatial import ConvexHull, QhullError
 from skimage import measure
 
 import tdfields
 from slam.core.camera import backproject
 from slam.model.mc_grid import colored_mesh, empty_mesh, mc_grid, sample_sdf
-from slam.model.mesh_blocks import Observed, extract_blocks, observed_blocks, observed_voxels
+from slam.model.mesh_blocks import Observed, extract_near, observed_voxels
+
+if TYPE_CHECKING:  # imported where a Trimesh is made: 36 MB of modules that a streamed PLY does not need
+    import trimesh
 
 
 def hull_points(depths: list[torch.Tensor], c2ws: list[torch.Tensor], intrinsics, per_frame: int = 2000,
@@ -85,7 +89,7 @@ class Hull:
         a = n[:, 0] / s
         base = n[:, 0] * (c[0] - c[0] / s) + d
         pos, neg, flat = a > 0, a < 0, a == 0
-        chunk = max(1, (1 << 22) // len(n))
+        chunk = max(1, (1 << 20) // len(n))  # lines at a time: a few [chunk, F] float64 temporaries
         for start in range(0, ny * nz, chunk):
             sl = slice(start, start + chunk)
             b = py[sl, None] * n[:, 1] + pz[sl, None] * n[:, 2] + base
@@ -121,9 +125,8 @@ def extract_mesh(scene, bound, resolution: float, batch: int = 500000, hull: Hul
     """
     with tdfields.frozen(scene):  # the map is fixed while meshing: Six-axis composes its planes once
         if block_cells > 0 and observed is not None:
-            grid = mc_grid(bound, resolution)
-            blocks = observed_blocks(observed.voxels, observed.size, grid, block_cells, observed.size)
-            return extract_blocks(scene, grid, blocks, block_cells, batch, hull, device)
+            with extract_near(scene, bound, resolution, observed, block_cells, batch, hull, device) as blocks:
+                return blocks.trimesh(scene, batch, device)
         return _extract(scene, bound, resolution, batch, hull, device)
 
 
@@ -183,13 +186,18 @@ def run_mesh(run, resolution: float | None = None, cull: bool | None = None) -> 
     kfs = run.keyframes()  # waits for a mapping call in progress (the keyframes are the mapper's)
     pts = run_hull_points(run, kfs)
     hull = Hull(pts, mcfg.hull_scale) if len(pts) >= 4 else None
-    observed = run_observed(run, kfs) if mcfg.block_cells else None
-    mesh = extract_mesh(run.scene, run.mc_bound, resolution or mcfg.resolution, mcfg.batch, hull, run.device,
-                        observed, mcfg.block_cells)
-    if not (mcfg.cull if cull is None else cull) or not len(mesh.faces):
-        return mesh
+    res, cull = resolution or mcfg.resolution, mcfg.cull if cull is None else cull
     poses = run.map_poses()
     depths = _views(run, len(poses)) if mcfg.cull_depth_test else None
+    if mcfg.block_cells:
+        with extract_near(run.scene, run.mc_bound, res, run_observed(run, kfs), mcfg.block_cells, mcfg.batch, hull,
+                          run.device) as blocks:
+            if cull and blocks.face_count:
+                blocks.cull(poses, run.intrinsics, depths, run.cfg.scene.truncation)
+            return blocks.trimesh(run.scene, mcfg.batch, run.device)
+    mesh = extract_mesh(run.scene, run.mc_bound, res, mcfg.batch, hull, run.device)
+    if not cull or not len(mesh.faces):
+        return mesh
     return cull_mesh(mesh, poses, run.intrinsics, depths=depths, truncation=run.cfg.scene.truncation)
 
 

@@ -120,8 +120,8 @@ def test_cull_frustum_and_occlusion():
 
 
 def test_visible_vertices_a_chunk_at_a_time_is_the_same_rule(monkeypatch):
-    """Vertices are projected a chunk at a time (memory); the answer must not depend on the chunk, and a depth map
-    of NaN (an unreadable frame in ``run_mesh``) sees nothing."""
+    """Vertices are projected a chunk at a time (memory), and only the groups of them a frame can see; the answer
+    must not depend on either, and a depth map of NaN (an unreadable frame in ``run_mesh``) sees nothing."""
     from slam.eval import culling
 
     rng = np.random.default_rng(0)
@@ -135,6 +135,17 @@ def test_visible_vertices_a_chunk_at_a_time_is_the_same_rule(monkeypatch):
     monkeypatch.setattr(culling, "CHUNK", 333)
     assert 0 < whole.sum() < len(verts) and np.array_equal(culling.visible_vertices(verts, poses, k, depths), whole)
     assert not culling.visible_vertices(verts, poses[:1], k, [np.full((48, 64), np.nan)]).any()
+    # vertices grouped by the 1 m cells they lie in (boxes a little larger): frames skip the groups out of view
+    cell = np.floor(verts).astype(int)
+    order = np.lexsort(cell.T[::-1])
+    verts, cell = verts[order], cell[order]
+    first = np.flatnonzero(np.concatenate([[True], (cell[1:] != cell[:-1]).any(1)]))
+    boxes = np.stack([cell[first] - 0.01, cell[first] + 1.01], 1).astype(float)
+    whole = culling.visible_vertices(verts, poses, k, depths)
+    groups = (np.append(first, len(verts)), boxes)
+    skipped = [culling.ranges_in_view(len(verts), groups, poses[i], k, depths[i], 0.06) for i in range(3)]
+    assert all(sum(b - a for a, b in r) < len(verts) for r in skipped)
+    assert np.array_equal(culling.visible_vertices(verts, poses, k, depths, groups=groups), whole)
 
 
 def test_bad_meshes(tmp_path):

@@ -85,9 +85,40 @@ def test_block_seams_are_welded_and_unobserved_surfaces_left_out():
     near = Observed(voxels_of(BALL + RADIUS * d / np.linalg.norm(d, axis=1, keepdims=True), 0.05), 0.05)
     grid = mc_grid(BOUND, 0.05)
     blocks = observed_blocks(near.voxels, near.size, grid, 2, near.size)
-    mesh = extract_blocks(Room(), grid, blocks, 2)
+    with extract_blocks(Room(), grid, blocks, 2) as made:
+        mesh = made.trimesh(Room(), 1000, "cpu")
     assert (np.linalg.norm(mesh.vertices - BALL, axis=1) < RADIUS + 0.05).all()
     assert len(np.unique(blocks[:, 0])) > 5 and mesh.is_watertight and len(mesh.split(only_watertight=True)) == 1
+
+
+def test_culled_and_written_a_chunk_at_a_time_it_is_cull_mesh_of_the_whole(tmp_path, monkeypatch):
+    """Culling the blocks (each frame projected into the blocks it can see) keeps what ``cull_mesh`` keeps of the
+    whole mesh, and the PLY streamed a chunk at a time is that mesh, colours included."""
+    import trimesh
+
+    from slam.eval import cull_mesh
+    from slam.model import block_mesh
+
+    monkeypatch.setattr(block_mesh, "CHUNK", 999)
+    scene, grid = Room(), mc_grid(BOUND, 0.04)
+    observed = Observed(voxels_of(_surface(20000, np.random.default_rng(3)), 0.06), 0.06)
+    k = Intrinsics(30.0, 30.0, 19.5, 14.5, 30, 40)
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    poses[0, :3, 3] = [0.5, 0.2, -0.2]  # looking up +z from the floor
+    poses[1, :3, :3] = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]  # looking along +x from the room's -x side
+    poses[1, :3, 3] = [-0.7, 0.2, 0.3]
+    depths = [np.full((30, 40), 0.9), np.full((30, 40), 1.6)]
+    with extract_blocks(scene, grid, observed_blocks(observed.voxels, 0.06, grid, 8, 0.06), 8) as made:
+        whole = made.trimesh(scene, 1000, "cpu")
+        made.cull(poses, k, depths, 0.06)
+        culled = made.trimesh(scene, 1000, "cpu")
+        assert made.write_ply(tmp_path / "m.ply", scene, 1000, "cpu") == (len(culled.vertices), len(culled.faces))
+    ref = cull_mesh(whole, poses, k, depths, 0.06)
+    assert 0 < len(culled.faces) < len(whole.faces) / 2
+    assert np.array_equal(culled.faces, ref.faces) and np.array_equal(culled.vertices, ref.vertices)
+    written = trimesh.load(tmp_path / "m.ply", process=False)
+    assert np.array_equal(written.faces, culled.faces) and np.allclose(written.vertices, culled.vertices, atol=0)
+    assert np.array_equal(written.visual.vertex_colors, culled.visual.vertex_colors)
 
 
 def test_observed_blocks_are_the_blocks_meeting_the_grown_voxels():
