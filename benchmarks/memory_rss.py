@@ -240,14 +240,14 @@ def mesh_one(run: str, resolution: float, cells: int, ply: str, out_json: str) -
     """``lrslam mesh`` of ``run`` in this process (a fresh one: ``ru_maxrss`` is the process's peak)."""
     import resource
 
-    import trimesh
-
     from slam.cli import main as cli
 
     t0 = time.perf_counter()
     code = cli(["mesh", run, "--resolution", str(resolution), "--out", ply, "--set", f"meshing.block_cells={cells}"])
     wall = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    import trimesh  # only now: its modules would count in the peak (the block path never imports it)
+
     m = trimesh.load(ply, process=False)
     Path(out_json).write_text(json.dumps({"block_cells": cells, "exit": code, "wall_s": wall, "peak_rss_mb": peak,
                                           "vertices": len(m.vertices), "faces": len(m.faces)}))

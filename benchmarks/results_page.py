@@ -182,6 +182,21 @@ def memory_rss() -> str:
     return "\n".join(parts)
 
 
+def meshing() -> str:
+    import memory_rss as m
+
+    d = _json("walk_mesh/mesh_rss.json")
+    return "\n".join([
+        "`lrslam mesh` of a whole walk at 2 cm: one dense volume over the marching-cubes bound "
+        "(`meshing.block_cells=0`, the reference) against the blocks near the keyframes' depth (the default), "
+        "culled and written the same way; accuracy and completion against the walk's ground-truth mesh with the "
+        "run's own protocol ([how LRSLAM works](slam.md), Meshing).", "",
+        m.mesh_table(d), "",
+        _source("walk_mesh/mesh_rss.json", "lrslam run --config synthetic/walk --out runs/walk --no-mesh && "
+                "python benchmarks/memory_rss.py --mesh runs/walk --resolution 0.02 --block-cells 0 32 "
+                "--out benchmarks/results/walk_mesh")])
+
+
 def robustness() -> str:
     nd = _json("no_depth/no_depth_study.json")
     lines = [f"**Frames without depth, tracked on colour.** Measured {nd['date']} with tdfields {nd['version']} on "
@@ -238,7 +253,7 @@ FIGURES = {"memory_growth.png": "memory_growth.png", "walk_hold.png": "walk_hold
 SECTIONS = (("Parameters", parameters), ("Memory growth", memory_growth), ("Field query speed", field_speed),
             ("SLAM accuracy and frame time", slam_accuracy), ("Profiles", profiles), ("Real-time replay", realtime),
             ("The long walk", walk), ("Loop closure on the walk", walk_loops), ("Memory over a long run", memory_rss),
-            ("Robustness", robustness), ("NeRF", nerf), ("GPU", gpu))
+            ("Meshing memory", meshing), ("Robustness", robustness), ("NeRF", nerf), ("GPU", gpu))
 
 
 def render() -> str:

@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # imported where a Trimesh is made: 36 MB of modules that a s
 
 #: points per SDF or colour query of the block extraction at most (``meshing.batch`` may ask fewer): a colour
 #: query's temporaries take almost a kilobyte a point (57 MB at 65536 points on the walk's map)
-QUERY = 32768
+QUERY = 16384
 
 
 @dataclass(frozen=True)
