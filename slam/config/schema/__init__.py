@@ -53,8 +53,8 @@ class Config:
         "(numpy seeds are 32-bit: hence the bound)"))
     device: str = key("cpu", "torch device: `cpu`, `cuda` or `cuda:N` (`--device`); it picks the default profile: "
                              "realtime on the CPU, paper on CUDA")
-    threads: int = num(0, lo=0, hi=1024, doc="(ours) torch intra-op threads, the mapping process's too; 0: torch's "
-                                             "default")
+    threads: int = num(0, lo=0, hi=1024, doc="(ours) torch intra-op threads, the mapping process's and `lrslam "
+                                             "mesh`'s too; 0: torch's default")
     keep_freed_memory: bool = key(True, "(ours) glibc: reuse freed big tensors' memory instead of faulting in fresh "
                                         "pages (slam/engine/runtime.py)")
     trim_memory_every: int = num(20, **NONNEG, doc=(
