@@ -240,6 +240,8 @@ def mesh_one(run: str, resolution: float, cells: int, ply: str, out_json: str) -
     """``lrslam mesh`` of ``run`` in this process (a fresh one: ``ru_maxrss`` is the process's peak)."""
     import resource
 
+    import torch
+
     from slam.cli import main as cli
 
     t0 = time.perf_counter()
@@ -250,7 +252,8 @@ def mesh_one(run: str, resolution: float, cells: int, ply: str, out_json: str) -
 
     m = trimesh.load(ply, process=False)
     Path(out_json).write_text(json.dumps({"block_cells": cells, "exit": code, "wall_s": wall, "peak_rss_mb": peak,
-                                          "vertices": len(m.vertices), "faces": len(m.faces)}))
+                                          "torch_threads": torch.get_num_threads(), "vertices": len(m.vertices),
+                                          "faces": len(m.faces)}))
 
 
 def mesh_quality(run: str, ply: str) -> dict:
@@ -309,7 +312,9 @@ def mesh_main(args, out: Path) -> int:
             results.append(json.loads(Path(child).read_text()))
         for r in results:
             r["reconstruction"] = mesh_quality(args.mesh, f"{tmp}/mesh_{r['block_cells']}.ply")
-    d = {"stamp": stamp(), "run": args.mesh_name or Path(args.mesh).name, "resolution": args.resolution,
+    st = stamp()
+    st["torch_threads"] = results[0]["torch_threads"]  # lrslam mesh computes with the run's threads, not this one's
+    d = {"stamp": st, "run": args.mesh_name or Path(args.mesh).name, "resolution": args.resolution,
          "results": results}
     (out / "mesh_rss.json").write_text(json.dumps(d, indent=2))
     print(mesh_table(d))
