@@ -14,6 +14,13 @@ Usage::
     python benchmarks/profile_targets.py --before /tmp/w20 --after /tmp/after --seeds 5 \\
         --out benchmarks/results/profile_targets
 
+``--loops`` measures loop closure instead: the reference is the default itself with ``loops.enabled=true`` (from
+``--after``; no ``--before``), and the table gives both frame times and their ratio, both ATEs (with loops: the
+corrected trajectory's) and the paired difference, the loops and candidates a seed, and the largest error of an
+accepted loop against the ground truth (a false loop shows there)::
+
+    python benchmarks/profile_targets.py --loops --seeds 5 --out benchmarks/results/loops_dev
+
 ``--table-only`` rewrites the table from the JSON. The column "default - quality" is the mean of the per-seed
 differences with the half-width of their 95 % t interval: an interval that holds 0 means the seeds do not resolve
 a difference. Sequences (``--sequences``): ``gentle`` and ``fast`` (the fr1_rpy windows in ``../shared/data``), ``dev_range``
@@ -76,22 +83,34 @@ def sequences(out: Path) -> dict[str, tuple[list[str], dict[str, list[str]]]]:
             "walk300": (walk, {"quality": [*walk, *TUM_CPU_BUDGET], "own": walk})}
 
 
+def with_loops(seqs: dict) -> dict:
+    """The sequences with one reference each, ``loops``: the default's own arguments with loop closure on."""
+    return {name: (args, {"loops": [*args, "loops.enabled=true"]}) for name, (args, _) in seqs.items()}
+
+
 def summary(runs: list[dict]) -> dict:
     ok = [r for r in runs if "error" not in r]
     if not ok:
         return {"errors": [r["error"] for r in runs]}
     ates = [r["ate_rmse_cm"] for r in ok]
+    if any("loops" in r for r in ok):
+        errs = [r["loop_gt_error_max"] for r in ok if r.get("loop_gt_error_max")]
+        return {**summary([{k: v for k, v in r.items() if k != "loops"} for r in ok]),
+                "loops": [r["loops"] for r in ok], "loop_candidates": [r["loop_candidates"] for r in ok],
+                "ate_odometry_cm": [r["ate_odometry_cm"] for r in ok],
+                "loop_gt_error_max": [max(e[0] for e in errs), max(e[1] for e in errs)] if errs else None}
     return {"fpt_s": statistics.median(r["fpt_s"] for r in ok), "preload_s": statistics.median(r["preload_s"] for r in ok),
             "wall_s": statistics.median(r["wall_s"] for r in ok), "ate_cm_mean": statistics.mean(ates),
             "ate_cm_std": statistics.stdev(ates) if len(ates) > 1 else 0.0, "ate_cm": ates,
             "frames_lost": [r["frames_lost"] for r in ok], "failed": len(runs) - len(ok)}
 
 
-def paired(result_row: dict, ref: str) -> str:
-    """Default minus reference ATE over the seeds both finished: mean ± the 95 % interval's half-width (t)."""
+def paired(result_row: dict, ref: str, sign: float = 1.0) -> str:
+    """Default minus reference ATE over the seeds both finished (``sign`` -1: reference minus default): mean ± the
+    95 % interval's half-width (t)."""
     runs = result_row["runs"]
     ref_by_seed = {r["seed"]: r["ate_rmse_cm"] for r in runs[ref] if "error" not in r}
-    diffs = [r["ate_rmse_cm"] - ref_by_seed[r["seed"]] for r in runs["default"]
+    diffs = [sign * (r["ate_rmse_cm"] - ref_by_seed[r["seed"]]) for r in runs["default"]
              if "error" not in r and r["seed"] in ref_by_seed]
     if len(diffs) < 2:
         return "-"
@@ -100,7 +119,32 @@ def paired(result_row: dict, ref: str) -> str:
     return f"{statistics.mean(diffs):+.2f} ± {half:.2f}"
 
 
+def loops_table(result: dict) -> str:
+    """The ``--loops`` table: the default without and with loop closure, per sequence."""
+    s = result["stamp"]
+    lines = [f"Measured {s['date']} on {s['cpu']} (2 cores), {result['seeds']} seeds, one torch thread per process, "
+             "`python benchmarks/profile_targets.py --loops`.", "",
+             "| sequence | frames | s/frame | with loops s/frame | ratio | ATE cm | with loops ATE cm "
+             "| with - without, 95 % | loops a seed | candidates a seed | worst loop against ground truth | frames lost |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name, row in result["sequences"].items():
+        d, w = row["default"], row["references"]["loops"]
+        if "fpt_s" not in d or "fpt_s" not in w:
+            lines.append(f"| {name} | failed: {d.get('errors') or w.get('errors')} |||||||||||")
+            continue
+        worst = w["loop_gt_error_max"]
+        worst = f"{100 * worst[0]:.2f} cm, {worst[1]:.2f}°" if worst else "no loop"
+        lines.append(f"| {name} | {row['frames']} | {d['fpt_s']:.3f} | {w['fpt_s']:.3f} | {w['fpt_s'] / d['fpt_s']:.2f} | "
+                     f"{d['ate_cm_mean']:.2f} ± {d['ate_cm_std']:.2f} | {w['ate_cm_mean']:.2f} ± {w['ate_cm_std']:.2f} | "
+                     f"{paired(row, 'loops', -1.0)} | {statistics.mean(w['loops']):.1f} | "
+                     f"{statistics.mean(w['loop_candidates']):.0f} | {worst} | "
+                     f"{max(d['frames_lost'])} / {max(w['frames_lost'])} |")
+    return "\n".join(lines)
+
+
 def table(result: dict) -> str:
+    if result.get("loops"):
+        return loops_table(result)
     s = result["stamp"]
     lines = [f"Measured {s['date']} on {s['cpu']} (2 cores), {result['seeds']} seeds, one torch thread per process, "
              "`python benchmarks/profile_targets.py`.", "",
@@ -123,7 +167,8 @@ def table(result: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--before", required=True, help="a checkout of 20b7b9c (git worktree add /tmp/w20 20b7b9c)")
+    ap.add_argument("--before", help="a checkout of 20b7b9c (git worktree add /tmp/w20 20b7b9c); not with --loops")
+    ap.add_argument("--loops", action="store_true", help="the default without and with loop closure, from --after")
     ap.add_argument("--after", default=str(ROOT), help="the checkout measured (default: this one)")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--sequences", nargs="+", default=["gentle", "fast", "dev_range", "room", "walk300"])
@@ -140,17 +185,20 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if "dev_range" in args.sequences:
         merge_tum_windows([SHARED / w for w in WINDOWS], out / "data" / "tum_fr1_rpy_0_224")
-    seqs = sequences(out)
+    seqs = with_loops(sequences(out)) if args.loops else sequences(out)
     unknown = sorted(set(args.sequences) - set(seqs))
-    if unknown or args.seeds < 1:
-        raise SystemExit(f"profile_targets: error: unknown sequences {unknown} or --seeds < 1")
+    if unknown or args.seeds < 1 or not (args.loops or args.before):
+        raise SystemExit(f"profile_targets: error: unknown sequences {unknown}, --seeds < 1, or neither --before "
+                         "nor --loops")
     sys.path.insert(0, str(ROOT))
     from _stamp import stamp
 
-    result = {"stamp": stamp(), "command": " ".join(sys.argv), "seeds": args.seeds, "sequences": {}}
+    result = {"stamp": stamp(), "command": " ".join(sys.argv), "seeds": args.seeds, "loops": args.loops,
+              "sequences": {}}
     for name in args.sequences:
         default_args, references = seqs[name]
-        variants = [("default", args.after, default_args), *((ref, args.before, a) for ref, a in references.items())]
+        ref_checkout = args.after if args.loops else args.before
+        variants = [("default", args.after, default_args), *((ref, ref_checkout, a) for ref, a in references.items())]
         runs = {variant: [] for variant, _, _ in variants}
         for seed in range(args.seeds):
             for variant, checkout, extra in variants:
@@ -160,6 +208,12 @@ def main(argv=None) -> int:
                 if "error" not in rec:
                     m = json.loads((out / "runs" / f"{v['name']}-r0" / "metrics.json").read_text())
                     rec.update(preload_s=m.get("preload_s") or 0.0, frames_lost=m.get("frames_lost", 0), seed=seed)
+                    if m.get("loops") is not None:
+                        lp, odo = m["loops"], m.get("ate_odometry_rmse_m")
+                        rec.update(loops=lp["loops"], loop_candidates=lp["candidates_tried"],
+                                   ate_odometry_cm=None if odo is None else 100 * odo,
+                                   loop_gt_error_max=[lp["gt_error_max_m"], lp["gt_error_max_deg"]]
+                                   if "gt_error_max_m" in lp else None)
                 runs[variant].append(rec)
         frames = next((r["num_frames"] for r in runs["default"] if "num_frames" in r), None)
         result["sequences"][name] = {"frames": frames, "args": {"default": default_args, **references},
