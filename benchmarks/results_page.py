@@ -163,6 +163,22 @@ def walk_loops() -> str:
                 "'lrslam, loops' --mesh-resolution 0.04 --out benchmarks/results/walk_loops")])
 
 
+def loops_dev() -> str:
+    import profile_targets as m
+
+    d = _json("loops_dev/profile_targets.json")
+    return "\n".join([
+        "The default (`lrslam run --data DIR`, the `realtime` profile) without and with loop closure "
+        "(`loops.enabled=true`), each seed's two runs in turn in fresh processes: frame time (start-up apart), ATE "
+        "(with loops: the corrected trajectory's) and the mean per-seed difference with its 95 % interval, the loops "
+        "accepted and the candidates verified a seed, and the accepted loop that disagreed most with the ground "
+        "truth over all seeds. `gentle` and `fast` are the fr1_rpy windows (pairs 125-224 and 0-124), `dev_range` "
+        "pairs 0-224, `room` the bundled synthetic room, `walk300` the synthetic walk's first 300 frames.", "",
+        m.table(d), "",
+        _source("loops_dev/profile_targets.json",
+                "python benchmarks/profile_targets.py --loops --seeds 5 --out benchmarks/results/loops_dev")])
+
+
 def memory_rss() -> str:
     import memory_rss as m
 
@@ -253,7 +269,8 @@ FIGURES = {"memory_growth.png": "memory_growth.png", "walk_hold.png": "walk_hold
 
 SECTIONS = (("Parameters", parameters), ("Memory growth", memory_growth), ("Field query speed", field_speed),
             ("SLAM accuracy and frame time", slam_accuracy), ("Profiles", profiles), ("Real-time replay", realtime),
-            ("The long walk", walk), ("Loop closure on the walk", walk_loops), ("Memory over a long run", memory_rss),
+            ("The long walk", walk), ("Loop closure on the walk", walk_loops),
+            ("Loop closure on the dev sequences", loops_dev), ("Memory over a long run", memory_rss),
             ("Meshing memory", meshing), ("Robustness", robustness), ("NeRF", nerf), ("GPU", gpu))
 
 
