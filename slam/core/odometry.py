@@ -217,6 +217,32 @@ def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_j
 SMOOTH_NORMALS = 5
 
 
+def normal_matrix(depth: torch.Tensor, intrinsics) -> torch.Tensor | None:
+    """How firmly a depth image's geometry holds each direction of camera motion: ``[6, 6]`` float64, the mean of
+    ``J^T J`` over the image's points with ``J = [p x n, n]`` (point ``p`` and normal ``n`` in this camera's frame,
+    metres; left twists (rotation, translation) in this camera's frame), normals averaged over
+    :data:`SMOOTH_NORMALS` pixels square at the coarsest pyramid level; None with fewer than 50 such points.
+
+    Args:
+        depth: ``[H, W]`` metres (0 invalid); intrinsics: its ``slam.data.Intrinsics``.
+    """
+    f = pyramid(*depth.shape)[0]
+    d = _downsample(depth.detach().to("cpu", torch.float64), f)
+    vert = _vertices(d, intrinsics.fx / f, intrinsics.fy / f, intrinsics.cx / f, intrinsics.cy / f)
+    nrm, ok = _normals(vert, d, 0.1)
+    k = SMOOTH_NORMALS
+    summed = torch.nn.functional.avg_pool2d((nrm * ok[..., None]).permute(2, 0, 1)[None], k, 1, k // 2)[0]
+    share = torch.nn.functional.avg_pool2d(ok[None, None].double(), k, 1, k // 2)[0, 0]
+    nrm = summed.permute(1, 2, 0)
+    nrm = nrm / nrm.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    ok = ok & (share > 0.5)
+    if int(ok.sum()) < 50:
+        return None
+    p, n = vert[ok], nrm[ok]
+    J = torch.cat((torch.linalg.cross(p, n, dim=-1), n), -1)
+    return J.T @ J / J.shape[0]
+
+
 def unobserved_directions(depth: torch.Tensor, intrinsics, below: float) -> torch.Tensor:
     """The directions of camera motion that the geometry of a depth image does not observe: ``[6, m]`` orthonormal
     twists (rotation, translation; left twists in this camera's frame), m = 0 to 6.
@@ -230,21 +256,10 @@ def unobserved_directions(depth: torch.Tensor, intrinsics, below: float) -> torc
         depth: ``[H, W]`` metres (0 invalid); intrinsics: its ``slam.data.Intrinsics``.
         below: eigenvalue ratio under which a direction counts as unobserved.
     """
-    f = pyramid(*depth.shape)[0]
-    d = _downsample(depth.detach().to("cpu", torch.float64), f)
-    vert = _vertices(d, intrinsics.fx / f, intrinsics.fy / f, intrinsics.cx / f, intrinsics.cy / f)
-    nrm, ok = _normals(vert, d, 0.1)
-    k = SMOOTH_NORMALS
-    summed = torch.nn.functional.avg_pool2d((nrm * ok[..., None]).permute(2, 0, 1)[None], k, 1, k // 2)[0]
-    share = torch.nn.functional.avg_pool2d(ok[None, None].double(), k, 1, k // 2)[0, 0]
-    nrm = summed.permute(1, 2, 0)
-    nrm = nrm / nrm.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-    ok = ok & (share > 0.5)
-    if int(ok.sum()) < 50:
+    N = normal_matrix(depth, intrinsics)
+    if N is None:
         return torch.zeros(6, 0, dtype=torch.float64)
-    p, n = vert[ok], nrm[ok]
-    J = torch.cat((torch.linalg.cross(p, n, dim=-1), n), -1)
-    lam, vec = torch.linalg.eigh(J.T @ J / J.shape[0])
+    lam, vec = torch.linalg.eigh(N)
     return vec[:, lam < below * lam[-1]]
 
 

@@ -22,7 +22,7 @@ first ``H``. Either way the evaluation that ends a round (a small step, or the l
 
 With ``tracking.gn_prior`` = kappa > 0 the solve minimises the loss plus ``e^T P e``, ``e`` the tangent from the
 start pose (the ICP start) and ``P`` kappa times the start's mean curvature per group of axes (rotation,
-translation), the same on each axis of a group (:func:`_prior`). One draw of pixels constrains some directions
+translation), the same on each of the camera's own axes of a group (:func:`slam.engine.gn_prior.prior_metric`, ``tracking.gn_prior_shape``). One draw of pixels constrains some directions
 barely, and there its optimum is mostly noise (docs/slam.md, "A second-order tracker"); the prior keeps the
 pose near the start in those directions and leaves the well-constrained ones to the data. The loss reported is the
 data term alone.
@@ -42,6 +42,7 @@ from slam.core.losses import sdf_regions, total_loss, tracking_inliers
 from slam.core.pose import exp_se3, matrix_to_pose, normalize_pose, pose_to_matrix
 from slam.core.rendering import color_sum, composite, ray_box_exit, sample_colors
 from slam.core.sampling import sample_depth_rays
+from slam.engine.gn_prior import prior_metric
 from slam.engine.state import TrackResult
 
 
@@ -236,7 +237,7 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
         return None, float("nan"), "non-finite tracking loss", 1, inliers
     H, b = terms
     lam, it, message = tc.gn_damping, 2, ""
-    P = _prior(H, tc.gn_prior)
+    P = prior_metric(H, tc.gn_prior, T, tc.gn_prior_shape, depth, intrinsics)
     e = torch.zeros(6, dtype=P.dtype, device=P.device)  # the tangent from the start: the summed steps (small motions)
     data_loss = loss
     eye = torch.eye(6, dtype=P.dtype, device=P.device)
@@ -267,11 +268,3 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
                 message = "converged" if small else "no step lowers the loss"
                 break
     return T, data_loss, message, it, inliers
-
-
-def _prior(H: torch.Tensor, kappa: float) -> torch.Tensor:
-    """``[6, 6]`` metric of the prior towards the start (``tracking.gn_prior`` = kappa): kappa times the mean
-    curvature of the rotation axes and of the translation axes, the same on every axis of each, so a direction the
-    draw barely constrains is held as firmly as a well-constrained one."""
-    d = torch.diag(H)
-    return kappa * torch.diag(torch.cat((d[:3].mean().expand(3), d[3:].mean().expand(3))))

@@ -79,3 +79,8 @@ class TrackingConfig:
     gn_prior: float = num(0.0, lo=0, hi=1e6, doc=(
         "(ours) Gauss-Newton: a prior towards the start pose, this (kappa) times the mean curvature of the rotation / "
         "translation axes, the same on every axis of each; 0: none"))
+    gn_prior_shape: str = choice("camera", ("camera", "world", "geometry"), doc=(
+        "(ours) Gauss-Newton: the prior's metric; `camera`: the same on each of the camera's own rotation and "
+        "translation axes; `world`: the same on each axis of the solver's tangent, rotations about the world's "
+        "origin (a camera far from it has its rotations held by their lever arm); `geometry`: as firmly as the "
+        "frame's depth holds each direction (its point-to-plane normal matrix), scaled to `camera`'s mean"))
