@@ -119,14 +119,19 @@ def paired(result_row: dict, ref: str, sign: float = 1.0) -> str:
     return f"{statistics.mean(diffs):+.2f} ± {half:.2f}"
 
 
+def _head(result: dict, command: str, columns: list[str]) -> list[str]:
+    """A table's stamp line and its header rows."""
+    s = result["stamp"]
+    return [f"Measured {s['date']} on {s['cpu']} (2 cores), {result['seeds']} seeds, one torch thread per process, "
+            f"`{command}`.", "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+
+
 def loops_table(result: dict) -> str:
     """The ``--loops`` table: the default without and with loop closure, per sequence."""
-    s = result["stamp"]
-    lines = [f"Measured {s['date']} on {s['cpu']} (2 cores), {result['seeds']} seeds, one torch thread per process, "
-             "`python benchmarks/profile_targets.py --loops`.", "",
-             "| sequence | frames | s/frame | with loops s/frame | ratio | ATE cm | with loops ATE cm "
-             "| with - without, 95 % | loops a seed | candidates a seed | worst loop against ground truth | frames lost |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = _head(result, "python benchmarks/profile_targets.py --loops",
+                  ["sequence", "frames", "s/frame", "with loops s/frame", "ratio", "ATE cm", "with loops ATE cm",
+                   "with - without, 95 %", "loops a seed", "candidates a seed", "worst loop against ground truth",
+                   "frames lost"])
     for name, row in result["sequences"].items():
         d, w = row["default"], row["references"]["loops"]
         if "fpt_s" not in d or "fpt_s" not in w:
@@ -145,12 +150,9 @@ def loops_table(result: dict) -> str:
 def table(result: dict) -> str:
     if result.get("loops"):
         return loops_table(result)
-    s = result["stamp"]
-    lines = [f"Measured {s['date']} on {s['cpu']} (2 cores), {result['seeds']} seeds, one torch thread per process, "
-             "`python benchmarks/profile_targets.py`.", "",
-             "| sequence | frames | default s/frame | quality (20b7b9c) s/frame | ratio | default start-up s "
-             "| default ATE cm | quality ATE cm | default - quality, 95 % | frames lost |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = _head(result, "python benchmarks/profile_targets.py",
+                  ["sequence", "frames", "default s/frame", "quality (20b7b9c) s/frame", "ratio", "default start-up s",
+                   "default ATE cm", "quality ATE cm", "default - quality, 95 %", "frames lost"])
     for name, row in result["sequences"].items():
         d = row["default"]
         for ref, q in row["references"].items():
