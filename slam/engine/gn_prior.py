@@ -9,7 +9,7 @@ from slam.core.odometry import normal_matrix
 
 
 def prior_metric(H: torch.Tensor, kappa: float, T: torch.Tensor, shape: str = "camera", depth=None,
-           intrinsics=None) -> torch.Tensor:
+                 intrinsics=None) -> torch.Tensor:
     """``[6, 6]`` metric of the prior towards the start (``tracking.gn_prior`` = kappa) in the solver's tangent at
     camera-to-world ``T`` (``tracking.gn_prior_shape``):
 
@@ -19,24 +19,27 @@ def prior_metric(H: torch.Tensor, kappa: float, T: torch.Tensor, shape: str = "c
       origin is;
     * ``world``: the same in the solver's tangent itself (rotations about the world's origin, so a camera far from
       it has its rotations held by their lever arm);
-    * ``geometry``: the depth image's normal matrix (:func:`slam.core.odometry.normal_matrix`), scaled in the camera's frame so that each
-      group's mean diagonal is ``camera``'s: held as firmly as the depth holds each direction.
+    * ``geometry``: the depth image's normal matrix (:func:`slam.core.odometry.normal_matrix`), scaled in the
+      camera's frame so that each group's mean diagonal is ``camera``'s: held as firmly as the depth holds each
+      direction.
     """
     if kappa == 0:
         return torch.zeros_like(H)
     if shape == "world":
-        d = torch.diag(H)
-        return kappa * torch.diag(torch.cat((d[:3].mean().expand(3), d[3:].mean().expand(3))))
+        return kappa * torch.diag(_group_means(torch.diag(H)))
     M = camera_adjoint(T).to(H)
     Minv = torch.linalg.inv(M)
-    d = torch.diag(Minv @ H @ Minv.T)  # H about the camera's own axes
-    mean = torch.cat((d[:3].mean().expand(3), d[3:].mean().expand(3)))
+    mean = _group_means(torch.diag(Minv @ H @ Minv.T))  # H about the camera's own axes
     N = normal_matrix(depth, intrinsics) if shape == "geometry" else None
     if N is None:
         return kappa * M @ torch.diag(mean) @ M.T
-    g = torch.diag(N).to(H)
-    scale = torch.sqrt(mean / torch.cat((g[:3].mean().expand(3), g[3:].mean().expand(3))).clamp(min=1e-30))
+    scale = torch.sqrt(mean / _group_means(torch.diag(N).to(H)).clamp(min=1e-30))
     return kappa * M @ (scale[:, None] * N.to(H) * scale[None, :]) @ M.T
+
+
+def _group_means(d: torch.Tensor) -> torch.Tensor:
+    """``[6]`` diagonal (rotation, translation) -> ``[6]``: each group's mean on each of its axes."""
+    return torch.cat((d[:3].mean().expand(3), d[3:].mean().expand(3)))
 
 
 def camera_adjoint(T: torch.Tensor) -> torch.Tensor:

@@ -103,9 +103,7 @@ class LoopCloser:
         """Extract keyframe ``k``'s features, look for its loop; returns the accepted loop or None."""
         cfg = self.cfg
         q = extract(k, pose, color, depth, self.intr, cfg.features)
-        self.keyframes.append(q)
-        self._path.append(self._path[-1] + float(np.linalg.norm(pose[:3, 3] - self.keyframes[-2].pose[:3, 3]))
-                          if len(self.keyframes) > 1 else 0.0)
+        self._add(q)
         self.hists.append(self.vocab.histogram(q.descriptors) if self.vocab is not None else None)
         if self.vocab is None and len(self.keyframes) >= cfg.vocabulary_after:
             self.vocab = Vocabulary.learn([f.descriptors for f in self.keyframes], cfg.words, self.seed)
@@ -123,6 +121,12 @@ class LoopCloser:
             self.loops.append(loop)
             return loop
         return None
+
+    def _add(self, f: KeyframeFeatures) -> None:
+        """Append keyframe ``f`` and its path length from the first (metres; the drift bound grows with it)."""
+        step = float(np.linalg.norm(f.pose[:3, 3] - self.keyframes[-1].pose[:3, 3])) if self.keyframes else 0.0
+        self._path.append(self._path[-1] + step if self._path else 0.0)
+        self.keyframes.append(f)
 
     def candidates(self, i: int) -> list[int]:
         """Keyframe positions to verify for keyframe ``i``: the best word histograms, then the nearest poses within
@@ -193,9 +197,9 @@ class LoopCloser:
                 "last_pose": None if self.last_pose is None else torch.from_numpy(self.last_pose.copy())}
 
     def load_state_dict(self, d: dict) -> None:
-        self.keyframes = [KeyframeFeatures.from_state_dict(f) for f in d["keyframes"]]
-        steps = [np.linalg.norm(b.pose[:3, 3] - a.pose[:3, 3]) for a, b in zip(self.keyframes, self.keyframes[1:])]
-        self._path = np.concatenate(([0.0], np.cumsum(steps))).tolist()[: len(self.keyframes)]
+        self.keyframes, self._path = [], []
+        for f in d["keyframes"]:
+            self._add(KeyframeFeatures.from_state_dict(f))
         self.vocab = Vocabulary.from_state_dict(d["vocab"]) if d["vocab"] is not None else None
         self.hists = [self.vocab.histogram(f.descriptors) if self.vocab is not None else None for f in self.keyframes]
         self.loops = [{**lp, "rel": lp["rel"].numpy()} for lp in d["loops"]]
