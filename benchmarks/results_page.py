@@ -156,8 +156,8 @@ def walk_loops() -> str:
                          f"of {r['loop_candidates']} candidates" for r in d["runs"])
     return "\n".join([
         "The synthetic walk at the default profile with loop closure (`loops.enabled=true`, docs/loops.md): the "
-        "tracker's ATE (odometry) and the pose graph's (ATE RMSE). The frame times are not for comparison: the "
-        "runs shared the machine with other work.", "",
+        "tracker's ATE (odometry) and the pose graph's (ATE RMSE). The loops' cost in frame time is measured "
+        "against runs without them in the dev-sequence table below.", "",
         m.table(d["summary"], d["series"], d["stamp"], d["frames"], seeds), "", f"Per seed: {per_seed}.", "",
         _source("walk_loops/walk_study.json", "python benchmarks/walk_study.py --frames 2100 --seeds 5 --configs "
                 "'lrslam, loops' --mesh-resolution 0.04 --out benchmarks/results/walk_loops")])
