@@ -316,6 +316,9 @@ def mesh_main(args, out: Path) -> int:
     st["torch_threads"] = results[0]["torch_threads"]  # lrslam mesh computes with the run's threads, not this one's
     d = {"stamp": st, "run": args.mesh_name or Path(args.mesh).name, "resolution": args.resolution,
          "results": results}
+    metrics = Path(args.mesh) / "metrics.json"
+    if metrics.is_file():  # how far the run's own trajectory was off: the distances above include it
+        d["run_ate_rmse_m"] = json.loads(metrics.read_text()).get("ate_rmse_m")
     (out / "mesh_rss.json").write_text(json.dumps(d, indent=2))
     print(mesh_table(d))
     return 0
