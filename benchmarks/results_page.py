@@ -206,9 +206,8 @@ def meshing() -> str:
         "`lrslam mesh` of a whole walk at 2 cm: one dense volume over the marching-cubes bound "
         "(`meshing.block_cells=0`, the reference) against the blocks near the keyframes' depth (the default), "
         "culled and written the same way; accuracy and completion against the walk's ground-truth mesh with the "
-        "run's own protocol ([how LRSLAM works](slam.md), Meshing). Both meshes are of the run's one map"
-        + (f"; its trajectory's ATE RMSE was {100 * d['run_ate_rmse_m']:.2f} cm." if d.get("run_ate_rmse_m") else ".")
-        , "",
+        "run's own protocol ([how LRSLAM works](slam.md), Meshing). Both meshes are of the run's one map; its "
+        f"trajectory's ATE RMSE was {100 * d['run_ate_rmse_m']:.2f} cm.", "",
         m.mesh_table(d), "",
         _source("walk_mesh/mesh_rss.json", "lrslam run --config synthetic/walk --out runs/walk --no-mesh && "
                 "python benchmarks/memory_rss.py --mesh runs/walk --mesh-name 'the 2100-frame synthetic walk (seed 0, "

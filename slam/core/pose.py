@@ -184,13 +184,19 @@ def rotation_vector(R: torch.Tensor) -> torch.Tensor:
     return axis / 2 if float(torch.sin(angle)) < 1e-9 else axis * (angle / (2 * torch.sin(angle)))
 
 
+def skew(v: torch.Tensor) -> torch.Tensor:
+    """``[3]`` -> ``[3, 3]`` cross-product matrix: ``skew(v) @ u == v x u`` (differentiable in ``v``)."""
+    K = torch.zeros(3, 3, dtype=v.dtype, device=v.device)
+    K[0, 1], K[0, 2], K[1, 0], K[1, 2], K[2, 0], K[2, 1] = -v[2], v[1], v[2], -v[0], -v[1], v[0]
+    return K
+
+
 def exp_se3(xi: torch.Tensor) -> torch.Tensor:
     """``[6]`` twist ``(rotation vector, translation)`` (radians, metres) -> ``[4, 4]`` rigid motion, exact in the
     rotation and first-order in the translation; a pose update left-multiplies it: ``T <- exp_se3(xi) @ T``."""
     w, t = xi[:3], xi[3:]
     theta = w.norm()
-    K = torch.zeros(3, 3, dtype=xi.dtype, device=xi.device)
-    K[0, 1], K[0, 2], K[1, 0], K[1, 2], K[2, 0], K[2, 1] = -w[2], w[1], w[2], -w[0], -w[1], w[0]
+    K = skew(w)
     if float(theta) < 1e-12:
         R = torch.eye(3, dtype=xi.dtype, device=xi.device) + K
     else:

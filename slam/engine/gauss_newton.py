@@ -22,9 +22,10 @@ first ``H``. Either way the evaluation that ends a round (a small step, or the l
 
 With ``tracking.gn_prior`` = kappa > 0 the solve minimises the loss plus ``e^T P e``, ``e`` the tangent from the
 start pose (the ICP start) and ``P`` kappa times the start's mean curvature per group of axes (rotation,
-translation), the same on each of the camera's own axes of a group (:func:`slam.engine.gn_prior.prior_metric`, ``tracking.gn_prior_shape``). One draw of pixels constrains some directions
-barely, and there its optimum is mostly noise (docs/slam.md, "A second-order tracker"); the prior keeps the
-pose near the start in those directions and leaves the well-constrained ones to the data. The loss reported is the
+translation), the same on each of the camera's own axes of a group (``tracking.gn_prior_shape``,
+:func:`slam.engine.gn_prior.prior_metric`). One draw of pixels constrains some directions barely, and there its
+optimum is mostly noise (docs/slam.md, "A second-order tracker"); the prior keeps the pose near the start in those
+directions and leaves the well-constrained ones to the data. The loss reported is the
 data term alone.
 """
 

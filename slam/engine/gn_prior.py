@@ -6,6 +6,7 @@ from __future__ import annotations
 import torch
 
 from slam.core.odometry import normal_matrix
+from slam.core.pose import skew
 
 
 def prior_metric(H: torch.Tensor, kappa: float, T: torch.Tensor, shape: str = "camera", depth=None,
@@ -48,7 +49,6 @@ def camera_adjoint(T: torch.Tensor) -> torch.Tensor:
     ``[p x n, n]`` of a camera-frame point and normal moves as ``[R (p x n) + t x R n, R n]``."""
     Td = T.detach().to("cpu", torch.float64)
     R, t = Td[:3, :3], Td[:3, 3]
-    tx = torch.tensor([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]], dtype=torch.float64)
     M = torch.zeros(6, 6, dtype=torch.float64)
-    M[:3, :3], M[:3, 3:], M[3:, 3:] = R, tx @ R, R
+    M[:3, :3], M[:3, 3:], M[3:, 3:] = R, skew(t) @ R, R
     return M

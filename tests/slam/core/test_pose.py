@@ -4,7 +4,7 @@ import torch
 
 from slam.core.pose import (align_sign, constant_velocity, matrix_to_pose, matrix_to_quaternion, normalize_pose,
                             pose_distance, pose_gap, pose_to_matrix, quaternion_to_matrix, rotation_angle,
-                            standardize_quaternion)
+                            skew, standardize_quaternion)
 
 
 def _rand_quats(n, seed=0):
@@ -114,3 +114,12 @@ def test_pose_gap_is_the_relative_transform_of_a_to_b_for_tensors_and_arrays():
     dt, dr = pose_gap(A, B)
     assert math.isclose(dt, 0.5, rel_tol=1e-12) and math.isclose(dr, 30.0, rel_tol=1e-9)
     assert pose_gap(A.numpy(), B.numpy()) == (dt, dr)
+
+
+def test_skew_is_the_cross_product_and_carries_gradients():
+    v = torch.tensor([0.3, -1.2, 2.5], dtype=torch.float64, requires_grad=True)
+    u = torch.tensor([-0.7, 0.4, 1.1], dtype=torch.float64)
+    out = skew(v) @ u
+    assert torch.allclose(out, torch.linalg.cross(v, u))
+    out.sum().backward()
+    assert torch.allclose(v.grad, torch.linalg.cross(u, torch.ones(3, dtype=torch.float64)))
