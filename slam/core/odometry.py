@@ -77,12 +77,25 @@ def _normals(vert: torch.Tensor, depth: torch.Tensor, max_jump: float) -> tuple[
     return n, valid
 
 
-def _level_points(depth: torch.Tensor, cam: tuple[float, float, float, float],
-                  max_jump: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Points ``[H, W, 3]``, normals ``[H, W, 3]`` and their validity ``[H, W]`` of one pyramid level's depth;
-    ``cam``: that level's ``(fx, fy, cx, cy)``."""
+def smooth_normals(nrm: torch.Tensor, ok: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Normals ``[H, W, 3]`` averaged over the valid ones (``ok`` ``[H, W]``) of ``k`` pixels square and made unit
+    again, and their validity: valid before, with more than half of the square (``k * k`` pixels, the image's
+    outside counting as invalid) valid. ``k`` 1 returns them as they are."""
+    if k <= 1:
+        return nrm, ok
+    summed = torch.nn.functional.avg_pool2d((nrm * ok[..., None]).permute(2, 0, 1)[None], k, 1, k // 2)[0]
+    share = torch.nn.functional.avg_pool2d(ok[None, None].to(nrm.dtype), k, 1, k // 2)[0, 0]
+    out = summed.permute(1, 2, 0)
+    return out / out.norm(dim=-1, keepdim=True).clamp(min=1e-12), ok & (share > 0.5)
+
+
+def _level_points(depth: torch.Tensor, cam: tuple[float, float, float, float], max_jump: float,
+                  smooth: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Points ``[H, W, 3]``, normals ``[H, W, 3]`` (averaged over ``smooth`` pixels square:
+    :func:`smooth_normals`) and their validity ``[H, W]`` of one pyramid level's depth; ``cam``: that level's
+    ``(fx, fy, cx, cy)``."""
     vert = _vertices(depth, *cam)
-    nrm, ok = _normals(vert, depth, max_jump)
+    nrm, ok = smooth_normals(*_normals(vert, depth, max_jump), smooth)
     return vert, nrm, ok
 
 
@@ -139,6 +152,7 @@ def icp_relative_pose(
     min_cos: float = 0.8,
     min_inliers: float = 0.3,
     max_jump: float = 0.1,
+    smooth: int = 3,
     kernel: bool = True,
 ) -> ICPResult:
     """Estimate the relative pose of ``depth_cur``'s camera in ``depth_prev``'s camera frame.
@@ -153,6 +167,9 @@ def icp_relative_pose(
         min_cos: smallest cosine between corresponding normals.
         min_inliers: share of the current frame's valid points that must find a correspondence (finest level).
         max_jump: relative depth jump between neighbours beyond which no normal is computed (depth edges).
+        smooth: normals averaged over this many pixels square (:func:`smooth_normals`; 1: central differences
+            alone). Raw normals of far, noisy depth tilt at random, and such points hold the camera where it was
+            along the directions the scene barely observes (docs/robustness.md, "Depth ICP's normals").
         kernel: the registration as numba kernels (:mod:`slam.core.odometry_kernels`; the same formulas, the
             normal equations summed in another order: the pose to the last bits of a double); False: tensor ops,
             the reference.
@@ -173,15 +190,15 @@ def icp_relative_pose(
         from slam.core.odometry_kernels import register  # numba compiles (or loads its cache) on first use only
 
         inl, rmse, failed = register(dp.numpy(), dc.numpy(), T.numpy(), (fx, fy, cx, cy), levels, iters, max_dist,
-                                     min_cos, max_jump)
+                                     min_cos, max_jump, smooth)
     else:
         T, inl, rmse, failed = _register_reference(dp, dc, T, (fx, fy, cx, cy), levels, iters, max_dist, min_cos,
-                                                   max_jump)
+                                                   max_jump, smooth)
     ok = not failed and inl >= min_inliers and rmse < max_dist[-1]
     return ICPResult(T.float(), float(inl), rmse, bool(ok and torch.isfinite(T).all()))
 
 
-def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_jump):
+def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_jump, smooth):
     """The registration by tensor ops, the reference of :mod:`slam.core.odometry_kernels`: float64 depths
     ``[H, W]``, ``T [4, 4]`` the start, ``intr`` ``(fx, fy, cx, cy)`` of the full image. Returns ``(T, inlier
     share, RMS residual in metres, failed)``; failed: a level or a step had fewer than 50 points or matches."""
@@ -191,8 +208,8 @@ def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_j
         p_depth, c_depth = _downsample(dp, f), _downsample(dc, f)
         # pixel (u, v) of the level sits at (f u, f v) of the full image
         cam = (fx / f, fy / f, cx / f, cy / f)
-        vp, np_, okp = _level_points(p_depth, cam, max_jump)
-        vc, nc, okc = _level_points(c_depth, cam, max_jump)
+        vp, np_, okp = _level_points(p_depth, cam, max_jump, smooth)
+        vc, nc, okc = _level_points(c_depth, cam, max_jump, smooth)
         pts, pnrm = vc[okc], nc[okc]  # [P, 3] current camera frame
         if pts.shape[0] < 50 or int(okp.sum()) < 50:
             return T, 0.0, float("inf"), True
@@ -229,13 +246,7 @@ def normal_matrix(depth: torch.Tensor, intrinsics) -> torch.Tensor | None:
     f = pyramid(*depth.shape)[0]
     d = _downsample(depth.detach().to("cpu", torch.float64), f)
     vert = _vertices(d, intrinsics.fx / f, intrinsics.fy / f, intrinsics.cx / f, intrinsics.cy / f)
-    nrm, ok = _normals(vert, d, 0.1)
-    k = SMOOTH_NORMALS
-    summed = torch.nn.functional.avg_pool2d((nrm * ok[..., None]).permute(2, 0, 1)[None], k, 1, k // 2)[0]
-    share = torch.nn.functional.avg_pool2d(ok[None, None].double(), k, 1, k // 2)[0, 0]
-    nrm = summed.permute(1, 2, 0)
-    nrm = nrm / nrm.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-    ok = ok & (share > 0.5)
+    nrm, ok = smooth_normals(*_normals(vert, d, 0.1), SMOOTH_NORMALS)
     if int(ok.sum()) < 50:
         return None
     p, n = vert[ok], nrm[ok]

@@ -102,6 +102,29 @@ def level_points(depth, fx, fy, cx, cy, max_jump, vert, nrm, ok):  # pragma: no 
 
 
 @njit(nogil=True, cache=True)
+def smooth_normals(nrm, ok, k, out, out_ok):  # pragma: no cover - compiled
+    """``odometry.smooth_normals``: the valid normals of ``nrm [H, W, 3]`` (``ok [H, W]``) summed over ``k`` pixels
+    square, made unit, into ``out``; ``out_ok`` valid before with more than half of the ``k * k`` square valid (the
+    image's outside counting as invalid)."""
+    H, W = ok.shape
+    h = k // 2
+    for i in range(H):
+        for j in range(W):
+            s0, s1, s2, c = 0.0, 0.0, 0.0, 0
+            for ii in range(max(i - h, 0), min(i + h + 1, H)):
+                for jj in range(max(j - h, 0), min(j + h + 1, W)):
+                    if ok[ii, jj]:
+                        s0 += nrm[ii, jj, 0]
+                        s1 += nrm[ii, jj, 1]
+                        s2 += nrm[ii, jj, 2]
+                        c += 1
+            norm = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+            norm = norm if norm > 1e-12 else 1e-12
+            out[i, j, 0], out[i, j, 1], out[i, j, 2] = s0 / norm, s1 / norm, s2 / norm
+            out_ok[i, j] = ok[i, j] and c / (k * k) > 0.5
+
+
+@njit(nogil=True, cache=True)
 def _solve6(A, b):  # pragma: no cover - compiled
     """``A^-1 b`` of a 6x6 system by Gaussian elimination with partial pivoting (A and b are overwritten)."""
     n = 6
@@ -215,9 +238,10 @@ def register_level(pts, pnrm, vp, np_, okp, T, fx, fy, cx, cy, dmax, min_cos, n_
     return False
 
 
-def register(depth_prev, depth_cur, T, cam, levels, iters, max_dist, min_cos, max_jump):
+def register(depth_prev, depth_cur, T, cam, levels, iters, max_dist, min_cos, max_jump, smooth=1):
     """``odometry.icp_relative_pose``'s loop over the pyramid on numpy float64 arrays: depths ``[H, W]``, ``T``
-    ``[4, 4]`` the start (updated in place), ``cam`` the full image's ``(fx, fy, cx, cy)``. Returns ``(inliers, rmse,
+    ``[4, 4]`` the start (updated in place), ``cam`` the full image's ``(fx, fy, cx, cy)``, ``smooth`` the normals'
+    averaging square (:func:`smooth_normals`; 1: none). Returns ``(inliers, rmse,
     failed)``: the last step's inlier share and RMS residual, and whether a level had too few points or matches
     (the caller's failure result, ``T`` where it stopped)."""
     fx, fy, cx, cy = cam
@@ -229,6 +253,10 @@ def register(depth_prev, depth_cur, T, cam, levels, iters, max_dist, min_cos, ma
             d = np.ascontiguousarray(d[::f, ::f])
             v, n, ok = np.empty(d.shape + (3,)), np.empty(d.shape + (3,)), np.empty(d.shape, dtype=np.bool_)
             level_points(d, *lcam, max_jump, v, n, ok)
+            if smooth > 1:
+                n_raw, ok_raw = n, ok
+                n, ok = np.empty_like(n_raw), np.empty_like(ok_raw)
+                smooth_normals(n_raw, ok_raw, smooth, n, ok)
             keep += [v, n, ok]
         pts, pnrm = cur[0][cur[2]], cur[1][cur[2]]  # [P, 3] current camera frame, row-major as the reference
         if pts.shape[0] < 50 or int(prev[2].sum()) < 50:

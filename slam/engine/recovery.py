@@ -203,11 +203,12 @@ def _icp_against(kf, inp: TrackInput, guesses: list, keep: int = 3) -> torch.Ten
     for guess in guesses:
         rel0 = torch.linalg.solve(ref, pose_to_matrix(guess).double())
         res = icp_relative_pose(kf_depth, inp.depth, inp.intr, init=rel0, levels=(coarse,), iters=(6,),
-                                max_dist=(0.30,), min_inliers=0.0)
+                                max_dist=(0.30,), min_inliers=0.0, smooth=inp.cfg.tracking.icp_normals)
         screened.append((res.inliers if torch.isfinite(res.relative).all() else -1.0, len(screened), res.relative))
     best = None
     for _, _, rel in sorted(screened, key=lambda c: (-c[0], c[1]))[:keep]:
-        res = icp_relative_pose(kf_depth, inp.depth, inp.intr, init=rel.double(), **RELOC_ICP)
+        res = icp_relative_pose(kf_depth, inp.depth, inp.intr, init=rel.double(), smooth=inp.cfg.tracking.icp_normals,
+                                **RELOC_ICP)
         if res.ok and (best is None or res.rmse_m < best[0]):
             best = (res.rmse_m, matrix_to_pose((ref @ res.relative.double()).float()))
     return None if best is None else best[1]

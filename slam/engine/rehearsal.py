@@ -54,7 +54,8 @@ def rehearse_tracking(scene, cfg, intrinsics, color: torch.Tensor, depth: torch.
     try:
         scene = copy.deepcopy(scene)
         if cfg.tracking.init == "icp":
-            icp_start(pose, depth, pose, depth, intrinsics, hold_pose=pose, hold=cfg.tracking.icp_hold)
+            icp_start(pose, depth, pose, depth, intrinsics, hold_pose=pose, hold=cfg.tracking.icp_hold,
+                      smooth=cfg.tracking.icp_normals)
         track_frame(scene, color, depth, intrinsics, pose, cfg, torch.Generator().manual_seed(0))
     except Exception as exc:  # noqa: BLE001
         log.warning("kernel preload: the rehearsed tracking call failed (%s: %s)", type(exc).__name__, exc)

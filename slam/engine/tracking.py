@@ -59,7 +59,7 @@ def track_with_recovery(k: int, inp: TrackInput, st: RunState, pred: torch.Tenso
     if cfg.tracking.init == "icp" and st.prev_depth is not None:
         # ICP registers against the last trusted frame with depth: chain its motion onto that frame's pose
         init, _ = icp_start(st.est[st.prev_depth_k], st.prev_depth, pred, inp.depth, inp.intr, hold_pose=st.est[-1],
-                            hold=cfg.tracking.icp_hold)
+                            hold=cfg.tracking.icp_hold, smooth=cfg.tracking.icp_normals)
     res = track_frame(inp.scene, inp.color, inp.depth, inp.intr, init, cfg, inp.gen)
     last = st.last_trusted()
     anchor, dt = (st.est[last], run.dt(k, last)) if last >= 0 else (st.est[-1], run.dt(k, max(k - 1, 0)))

@@ -58,9 +58,11 @@ def _motion(roll_deg: float, tilt_deg: float, t) -> torch.Tensor:
     return m
 
 
-def test_facing_a_wall_icp_keeps_its_start_where_depth_cannot_see_and_the_hold_puts_back_the_previous_pose():
+def test_facing_a_wall_icp_fixes_what_depth_sees_and_the_hold_puts_back_the_previous_pose_where_it_is_blind():
     # a camera 0.6 m from a flat wall, as at the walk's end wall (docs/robustness.md, "Depth ICP holds what it
-    # cannot see"): depth fixes the distance and the two tilts, not the turn about the normal or a slide along it
+    # cannot see"): depth fixes the distance and the two tilts, not the turn about the normal or a slide along it,
+    # where ICP's result is whatever the noise makes of its start (here 2.6 cm and 1.0 degrees from a start 3.4 cm
+    # and 2.3 degrees off, the truth 0.4 cm and 0.3 degrees)
     intr = Intrinsics(130.0, 130.0, 79.5, 59.5, 120, 160)
     g = torch.Generator().manual_seed(0)
     true = _motion(0.3, 1.0, [0.004, 0.002, 0.01])  # slight roll and slide, 1 degree tilt, 1 cm closer
@@ -70,8 +72,7 @@ def test_facing_a_wall_icp_keeps_its_start_where_depth_cannot_see_and_the_hold_p
     assert res.ok
     rel = res.relative.double()
     assert abs(float(rel[2, 3] - true[2, 3])) < 1e-3 and abs(float(rel[1, 2] - true[1, 2])) < 2e-3  # seen: fixed
-    assert abs(float(rel[0, 3] - guess[0, 3])) < 2e-3  # blind: the slide stays the guess's (3.4 cm, not 0.4)
-    assert abs(math.degrees(math.atan2(float(rel[1, 0]), float(rel[0, 0]))) - 2.3) < 0.2  # and its 2.3 degree roll
+    assert abs(float(rel[0, 3] - true[0, 3])) > 1.5e-2  # blind: the slide is not measured
     blind = unobserved_directions(prev, intr, 3e-4)
     assert blind.shape[1] == 3  # measured eigenvalue ratios: 1e-5 to 2e-4 for the three, 2e-2 and up
     held = hold_unobserved(rel, torch.eye(4, dtype=torch.float64), blind)  # the previous pose there
@@ -142,3 +143,33 @@ def test_the_icp_kernels_give_the_references_registration(shared_data):
     got = idx[:m], tgt[:m], nrm[:m], src[:m]
     assert 0 < m < P - 3 * (P // 100)
     assert all(torch.equal(g, w) for g, w in zip(got, want))
+
+
+def test_in_a_corridor_with_kinect_like_depth_smoothed_normals_measure_the_forward_motion():
+    # the synthetic walk of data seed 1 down a corridor (frames 210-230): walls, floor and ceiling run along the
+    # motion, the far end is past the 4.5 m range, and the noise of the far depth (2.6 cm at 4 m) tilts raw
+    # central-difference normals at random; such points hold the camera where it was along the optical axis, so ICP
+    # from the true motion gave back about 0.7 of each 1.9 cm step (docs/robustness.md, "Depth ICP's normals")
+    import numpy as np
+
+    from slam.data.synthetic.config import walk_config
+    from slam.data.synthetic.render import render_frame, sensor_depth
+    from slam.data.synthetic.sequence import scene_and_path
+
+    cfg = walk_config(seed=1)
+    scene, poses = scene_and_path(cfg)
+    intr = cfg.intrinsics()
+
+    def depth(i):
+        d, cos = render_frame(scene, poses[i], intr, cfg.supersample)[1:3]
+        return torch.as_tensor(sensor_depth(d, cos, np.random.default_rng([cfg.seed, 2, i])), dtype=torch.float32)
+
+    errors = {1: [], 3: []}
+    for i in range(212, 232, 3):
+        prev, cur = depth(i - 1), depth(i)
+        true = torch.linalg.solve(torch.as_tensor(poses[i - 1]), torch.as_tensor(poses[i])).double()
+        for smooth in errors:
+            rel = icp_relative_pose(prev, cur, intr, init=true.float(), smooth=smooth).relative.double()
+            errors[smooth].append(float(torch.linalg.solve(true, rel)[2, 3]))
+    assert abs(sum(errors[3]) / len(errors[3])) < 2.5e-3  # measured: -1.1 mm a frame
+    assert sum(errors[1]) / len(errors[1]) < -5e-3  # raw normals: -14 mm a frame
