@@ -176,5 +176,8 @@ def _validate(cfg: Config) -> None:
     if cfg.mapper_process and not cfg.parallel:
         raise SlamInputError("config key 'mapper_process' = true needs 'parallel' = true (sequential mode maps inline, "
                              "in the tracker's own process)")
+    if cfg.tracking.icp_normals % 2 == 0:
+        raise SlamInputError(f"config key 'tracking.icp_normals' = {cfg.tracking.icp_normals} must be odd (a square "
+                             "of pixels around each one)")
     if len(cfg.tracking.ignore_edge) != 2:
         raise SlamInputError(f"config key 'tracking.ignore_edge' must be [rows, columns], got {cfg.tracking.ignore_edge!r}")

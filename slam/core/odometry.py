@@ -83,6 +83,8 @@ def smooth_normals(nrm: torch.Tensor, ok: torch.Tensor, k: int) -> tuple[torch.T
     outside counting as invalid) valid. ``k`` 1 returns them as they are."""
     if k <= 1:
         return nrm, ok
+    if k % 2 == 0:
+        raise ValueError(f"smooth_normals: the square must have a centre pixel (an odd size), got {k}")
     summed = torch.nn.functional.avg_pool2d((nrm * ok[..., None]).permute(2, 0, 1)[None], k, 1, k // 2)[0]
     share = torch.nn.functional.avg_pool2d(ok[None, None].to(nrm.dtype), k, 1, k // 2)[0, 0]
     out = summed.permute(1, 2, 0)
@@ -180,6 +182,8 @@ def icp_relative_pose(
     if depth_prev.dim() != 2 or depth_prev.shape != depth_cur.shape:
         raise ValueError(f"icp_relative_pose: depths must be [H, W] of one size, got {tuple(depth_prev.shape)} and "
                          f"{tuple(depth_cur.shape)}")
+    if smooth < 1 or smooth % 2 == 0 and smooth > 1:
+        raise ValueError(f"icp_relative_pose: smooth must be 1 or an odd number of pixels, got {smooth}")
     dt = torch.float64
     if levels is None:
         levels = pyramid(*depth_cur.shape)

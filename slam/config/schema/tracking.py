@@ -31,9 +31,9 @@ class TrackingConfig:
         "directions the depth does not observe (a single plane in view): those whose point-to-plane eigenvalue is "
         "below this times the largest; 0: off"))
     icp_normals: int = num(3, lo=1, hi=15, doc=(
-        "(ours) with `init: icp`: ICP's normals averaged over this many pixels square (1: central differences "
-        "alone, as before). Raw normals of far, noisy depth held the start back along the optical axis in a "
-        "corridor (docs/robustness.md, \"Depth ICP's normals\")"))
+        "(ours) depth ICP's normals (the `init: icp` start, relocalisation) averaged over this many pixels square, "
+        "an odd number (1: central differences alone, as before). Raw normals of far, noisy depth held the start back along the "
+        "optical axis in a corridor (docs/robustness.md, \"Depth ICP's normals\")"))
     outlier_factor: float = num(10.0, **POSITIVE, doc=(
         "a ray is an outlier when its depth error is over this times the median error (ESLAM's rule)"))
     patience: int = num(0, **NONNEG, doc=(

@@ -116,6 +116,13 @@ def _bad_value(key, rng):
     return [v, v] if key.endswith(("cell_sizes", "ignore_edge")) else v
 
 
+def test_icp_normals_must_be_an_odd_square():
+    # an even square has no centre pixel: the reference's pooling would change the image's size
+    assert load_config("synthetic", ["tracking.icp_normals=5"]).tracking.icp_normals == 5
+    with pytest.raises(SlamInputError, match=r"config key 'tracking.icp_normals' = 4 must be odd"):
+        load_config("synthetic", ["tracking.icp_normals=4"])
+
+
 @pytest.mark.parametrize("key", [k for k, _ in _numeric_keys()])
 def test_out_of_range_values_name_key_value_and_range(key):
     from slam.config import Range

@@ -173,3 +173,5 @@ def test_in_a_corridor_with_kinect_like_depth_smoothed_normals_measure_the_forwa
             errors[smooth].append(float(torch.linalg.solve(true, rel)[2, 3]))
     assert abs(sum(errors[3]) / len(errors[3])) < 2.5e-3  # measured: -1.1 mm a frame
     assert sum(errors[1]) / len(errors[1]) < -5e-3  # raw normals: -14 mm a frame
+    with pytest.raises(ValueError, match="odd"):
+        icp_relative_pose(prev, cur, intr, smooth=4)
