@@ -182,7 +182,7 @@ def icp_relative_pose(
     if depth_prev.dim() != 2 or depth_prev.shape != depth_cur.shape:
         raise ValueError(f"icp_relative_pose: depths must be [H, W] of one size, got {tuple(depth_prev.shape)} and "
                          f"{tuple(depth_cur.shape)}")
-    if smooth < 1 or smooth % 2 == 0 and smooth > 1:
+    if smooth < 1 or smooth % 2 == 0:
         raise ValueError(f"icp_relative_pose: smooth must be 1 or an odd number of pixels, got {smooth}")
     dt = torch.float64
     if levels is None:

@@ -32,8 +32,8 @@ class TrackingConfig:
         "below this times the largest; 0: off"))
     icp_normals: int = num(3, lo=1, hi=15, doc=(
         "(ours) depth ICP's normals (the `init: icp` start, relocalisation) averaged over this many pixels square, "
-        "an odd number (1: central differences alone, as before). Raw normals of far, noisy depth held the start back along the "
-        "optical axis in a corridor (docs/robustness.md, \"Depth ICP's normals\")"))
+        "an odd number (1: central differences alone, as before). Raw normals of far, noisy depth held the start "
+        "back along the optical axis in a corridor (docs/robustness.md, \"Depth ICP's normals\")"))
     outlier_factor: float = num(10.0, **POSITIVE, doc=(
         "a ray is an outlier when its depth error is over this times the median error (ESLAM's rule)"))
     patience: int = num(0, **NONNEG, doc=(

@@ -48,6 +48,22 @@ def scene_and_path(cfg: SynthConfig):
     return build_scene(cfg.seed), camera_path(cfg)
 
 
+def sensor_frame(scene, pose: np.ndarray, cfg: SynthConfig, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``i`` of the sequence as the sensor delivers it, before the PNGs' quantisation: colour ``[H, W, 3]``
+    (float64, noisy, unclipped) and depth ``[H, W]`` (metres, 0 = hole) of the view from ``pose`` ``[4, 4]``
+    (camera-to-world) with the config's sensor model and noises, drawn from the frame's own random stream."""
+    color, depth, cos, _ = render_frame(scene, pose, cfg.intrinsics(), cfg.supersample)
+    rng = np.random.default_rng([cfg.seed, 2, i])
+    if cfg.sensor_holes:
+        depth = sensor_depth(depth, cos, rng)
+    if cfg.depth_noise_sigma > 0:
+        valid = depth > 0
+        depth = np.where(valid, depth + rng.normal(0.0, cfg.depth_noise_sigma, depth.shape), 0.0)
+    if cfg.color_noise_sigma > 0:
+        color = color + rng.normal(0.0, cfg.color_noise_sigma, color.shape)
+    return color, depth
+
+
 def generate(out_dir, cfg: SynthConfig | None = None, *, overwrite: bool = True) -> Path:
     """Render the sequence and write it in the Replica layout into ``out_dir``; returns ``out_dir``.
 
@@ -72,15 +88,7 @@ def generate(out_dir, cfg: SynthConfig | None = None, *, overwrite: bool = True)
     scene, poses = scene_and_path(cfg)
     intr = cfg.intrinsics()
     for i, pose in enumerate(poses):
-        color, depth, cos, _ = render_frame(scene, pose, intr, cfg.supersample)
-        rng = np.random.default_rng([cfg.seed, 2, i])
-        if cfg.sensor_holes:
-            depth = sensor_depth(depth, cos, rng)
-        if cfg.depth_noise_sigma > 0:
-            valid = depth > 0
-            depth = np.where(valid, depth + rng.normal(0.0, cfg.depth_noise_sigma, depth.shape), 0.0)
-        if cfg.color_noise_sigma > 0:
-            color = color + rng.normal(0.0, cfg.color_noise_sigma, color.shape)
+        color, depth = sensor_frame(scene, pose, cfg, i)
         col8 = np.round(np.clip(color, 0, 1) * 255).astype(np.uint8)
         # past the PNG's 10 m range (the walk without the sensor model) there is no reading
         depth = np.where(depth < 65535 / DEPTH_SCALE, np.maximum(depth, 0), 0)

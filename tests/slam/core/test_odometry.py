@@ -150,19 +150,15 @@ def test_in_a_corridor_with_kinect_like_depth_smoothed_normals_measure_the_forwa
     # motion, the far end is past the 4.5 m range, and the noise of the far depth (2.6 cm at 4 m) tilts raw
     # central-difference normals at random; such points hold the camera where it was along the optical axis, so ICP
     # from the true motion gave back about 0.7 of each 1.9 cm step (docs/robustness.md, "Depth ICP's normals")
-    import numpy as np
-
     from slam.data.synthetic.config import walk_config
-    from slam.data.synthetic.render import render_frame, sensor_depth
-    from slam.data.synthetic.sequence import scene_and_path
+    from slam.data.synthetic.sequence import scene_and_path, sensor_frame
 
     cfg = walk_config(seed=1)
     scene, poses = scene_and_path(cfg)
     intr = cfg.intrinsics()
 
     def depth(i):
-        d, cos = render_frame(scene, poses[i], intr, cfg.supersample)[1:3]
-        return torch.as_tensor(sensor_depth(d, cos, np.random.default_rng([cfg.seed, 2, i])), dtype=torch.float32)
+        return torch.as_tensor(sensor_frame(scene, poses[i], cfg, i)[1], dtype=torch.float32)
 
     errors = {1: [], 3: []}
     for i in range(212, 232, 3):
