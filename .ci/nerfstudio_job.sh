@@ -51,5 +51,5 @@ EOF
 TORCH=$("$PY" -c 'import torch; print(torch.__version__)')
 echo "nerfstudio venv ready in $(( $(date +%s) - t0 )) s: $VENV (torch $TORCH)"
 
-"$PY" -m pytest -q -p no:cacheprovider tests/tdfields/integrations/test_nerfstudio.py
+"$PY" -m pytest -q -n 0 -p no:cacheprovider tests/tdfields/integrations/test_nerfstudio.py
 echo "nerfstudio job: $(( $(date +%s) - t0 )) s"
