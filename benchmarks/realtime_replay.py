@@ -34,13 +34,16 @@ def run_one(preset: str, data: Path | None, seed: int, out: Path, extra: list[st
     m = json.loads((out / "metrics.json").read_text())
     ate = m.get("ate_rmse_m")
     return {"seed": seed, **m["realtime"], "ate_rmse_cm": None if ate is None else round(100 * ate, 4),
-            "fpt_s": round(m["fpt_s"], 4), "preload_s": round(m["preload_s"], 3), "frames_lost": m["frames_lost"]}
+            "fpt_s": round(m["fpt_s"], 4), "preload_s": round(m["preload_s"], 3), "frames_lost": m["frames_lost"],
+            "mapping_calls": m["mapping_calls"], "mapping_declined": m.get("mapping_declined"),
+            "mapping_wait_s": round(m["mapping_wait_s"], 3)}
 
 
 def summary(runs: list[dict]) -> dict:
     """Mean ± std over seeds of each number."""
     out = {}
-    for key in ("frames_processed", "frames_dropped", "latency_median_s", "latency_p95_s", "ate_rmse_cm", "fpt_s"):
+    for key in ("frames_processed", "frames_dropped", "latency_median_s", "latency_p95_s", "ate_rmse_cm", "fpt_s",
+                "mapping_calls", "mapping_declined"):
         vals = np.asarray([r[key] for r in runs if r.get(key) is not None], dtype=float)
         if vals.size:
             out[key] = {"mean": round(float(vals.mean()), 4), "std": round(float(vals.std(ddof=1)), 4)

@@ -115,22 +115,34 @@ def profiles() -> str:
 
 
 def realtime() -> str:
-    d = _json("realtime_replay/default.json")
+    runs = {"free (default)": _json("realtime_replay/default.json"),
+            "schedule": _json("realtime_replay/schedule.json")}
     lines = ["`lrslam run --data DIR --realtime` replays a folder at its recorded rate (30 Hz): a frame that arrives "
-             "while the system is busy is dropped, and the newest is processed next. Mean ± std over seeds.", "",
-             _stamp_line(d["stamp"]), "",
-             "| window | seeds | frames processed | dropped | latency s, median / 95th percentile | "
-             "ATE over the processed frames, cm | per seed |", "|---|---|---|---|---|---|---|"]
-    for name, seq in d["sequences"].items():
-        s, runs = seq["summary"], seq["runs"]
-        per_seed = ", ".join(f"{r['ate_rmse_cm']:.1f}" for r in runs)
-        lines.append(f"| {name} | {len(runs)} | {s['frames_processed']['mean']:.1f} ± {s['frames_processed']['std']:.1f}"
-                     f" | {s['frames_dropped']['mean']:.1f} | {s['latency_median_s']['mean']:.3f} / "
-                     f"{s['latency_p95_s']['mean']:.3f} | {s['ate_rmse_cm']['mean']:.1f} ± "
-                     f"{s['ate_rmse_cm']['std']:.1f} | {per_seed} |")
+             "while the system is busy is dropped, and the newest is processed next. `mapping.realtime_sync`: `free` "
+             "tracks on while the mapper is busy and maps only when it is free, `schedule` keeps the recorded run's "
+             "schedule (the tracker waits for the call of two frames before). Mean ± std over seeds.", "",
+             _stamp_line(runs["free (default)"]["stamp"]), "",
+             "| window | `realtime_sync` | seeds | frames processed | dropped | latency s, median / 95th percentile | "
+             "mapping calls / declined | ATE over the processed frames, cm | per seed |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name in runs["free (default)"]["sequences"]:
+        for sync, d in runs.items():
+            seq = d["sequences"][name]
+            s, rs = seq["summary"], seq["runs"]
+            per_seed = ", ".join(f"{r['ate_rmse_cm']:.1f}" for r in rs)
+            calls = (f"{s['mapping_calls']['mean']:.1f} / {s['mapping_declined']['mean']:.1f}"
+                     if "mapping_calls" in s else "")
+            lines.append(f"| {name} | {sync} | {len(rs)} | {s['frames_processed']['mean']:.1f} ± "
+                         f"{s['frames_processed']['std']:.1f} | {s['frames_dropped']['mean']:.1f} | "
+                         f"{s['latency_median_s']['mean']:.3f} / {s['latency_p95_s']['mean']:.3f} | {calls} | "
+                         f"{s['ate_rmse_cm']['mean']:.1f} ± {s['ate_rmse_cm']['std']:.1f} | {per_seed} |")
     return "\n".join(lines + ["", _source("realtime_replay/default.json",
                                           "python benchmarks/realtime_replay.py --config tum --seeds 5 "
-                                          "--out benchmarks/results/realtime_replay/default.json")])
+                                          "--out benchmarks/results/realtime_replay/default.json"), "",
+                               _source("realtime_replay/schedule.json",
+                                       "python benchmarks/realtime_replay.py --config tum --seeds 5 --set "
+                                       "mapping.realtime_sync=schedule --out benchmarks/results/realtime_replay/"
+                                       "schedule.json")])
 
 
 def walk() -> str:

@@ -8,7 +8,10 @@ frame is tracked against the map of the frame before it (ESLAM's effective behav
 ``lag = max(every_frame, 2)``: the call of frame ``m`` runs while frames ``m + 1 ... m + lag - 1`` are tracked
 against the previous map, and the tracker waits for it only at ``m + lag`` (the first call, the warm-up, is
 always waited for). What the tracker sees is fixed by
-the frame numbers, never by timing, so a parallel run repeats exactly too.
+the frame numbers, never by timing, so a parallel run repeats exactly too. A real-time run (``data.realtime`` or a
+live camera, whose frames are taken by timing anyway) uses ``free`` mode by default (``mapping.realtime_sync``): the
+tracker takes whichever calls have finished and never waits after the warm-up, and a frame is mapped only when no
+call is running (:meth:`MapWorker.declines`), so the frames a busy mapper would have made it wait for are tracked.
 
 The tracker never sees a half-written map: in parallel mode it tracks on its own copy of the scene, which is
 overwritten only from a snapshot the mapper took at the end of a call (a ``state_dict`` copy, a few MB), while
@@ -62,10 +65,12 @@ class MapWorker:
             a child process.
         rehearsal: ``(color, depth, pose)`` of a frame the child process rehearses its calls on before
             :meth:`ready` returns (``preload_kernels``, :mod:`slam.engine.rehearsal`); None: no rehearsal.
+        free: (parallel only) the tracker never waits after the warm-up, and a call is declined while one runs
+            (:meth:`declines`): a real-time run's ``mapping.realtime_sync: free``, see below.
     """
 
     def __init__(self, scene, keyframes, cfg, intrinsics, generator: torch.Generator, parallel: bool,
-                 rehearsal: tuple | None = None):
+                 rehearsal: tuple | None = None, free: bool = False):
         self.scene = scene
         self.keyframes = keyframes
         self.cfg = cfg
@@ -73,6 +78,8 @@ class MapWorker:
         self.gen = generator
         self.parallel = parallel
         self.lag = max(cfg.mapping.every_frame, 2) if parallel else 1
+        self.free = free and parallel
+        self.declined = 0  # calls declined because one was running (free)
         self.track_scene = copy.deepcopy(scene) if parallel else scene
         self.process = MapProcess(cfg, intrinsics, scene.aabb.device, self._arrived) if (
             parallel and cfg.mapper_process) else None
@@ -153,8 +160,27 @@ class MapWorker:
         return out
 
     def _upto(self, j: int) -> int:
-        upto = j - self.lag
+        upto = self._finished() if self.free else j - self.lag
         return max(upto, self._queue[0][0]) if not self._applied_any and self._queue else upto
+
+    def _finished(self) -> int:
+        """The frame of the newest queued call that has finished with every call before it (-1: none)."""
+        upto = -1
+        for k, f in self._queue:
+            if not (isinstance(f, MapDone) or f.done()):
+                break
+            upto = k
+        return upto
+
+    def declines(self, first: bool) -> bool:
+        """Whether a call submitted now is not made (counted in ``declined``): free mode, not the warm-up, and a call
+        is still running. A camera does not wait, so a real-time run maps the newest frame that wants mapping once
+        the mapper is free instead of queueing calls the tracker would wait for; what is mapped then depends on
+        timing, as the frames a real-time run takes do (:mod:`slam.engine.realtime`)."""
+        if not self.free or first or all(isinstance(f, MapDone) or f.done() for _, f in self._queue):
+            return False
+        self.declined += 1
+        return True
 
     def busy(self, j: int) -> bool:
         """Whether :meth:`sync` of frame ``j`` would wait now: a call it finishes is still running."""

@@ -99,7 +99,8 @@ class SLAM:
         self.loops = loop_closer(cfg, self.intr)
         try:  # from here on a reader thread, a mapper thread or process and a spill file exist: a failure closes them
             self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel,
-                                    rehearsal=frame0 if cfg.preload_kernels else None)
+                                    rehearsal=frame0 if cfg.preload_kernels else None,
+                                    free=realtime and cfg.mapping.realtime_sync == "free")
             preload(self.scene, cfg, self.intr, frame0, self.mapper)  # and waits for the mapper process's own
         except BaseException:
             self.close(abort=True)
@@ -199,7 +200,7 @@ class SLAM:
             self.loops.offer(k, frame.color, frame.depth, pose_to_matrix(st.est[-1]).numpy(), trusted)
         first = not st.initialized
         iters = call_iters(k, st, cfg.mapping, self._n_frames())
-        if iters is None:
+        if iters is None or self.mapper.declines(first):  # declines: a real-time run's busy mapper (map_worker)
             return False
         st.last_mapped = k
         keyframe = is_keyframe(k, st, cfg.mapping, first)

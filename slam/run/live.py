@@ -79,7 +79,8 @@ def live_to_folder(cfg: Config, feed, out: str | Path, progress: bool = True, me
         metrics = trajectory_metrics(run, out)
         metrics.update(loop_s=loop_s, frames_received=len(feed), camera_error=feed.error or None,
                        mapping_wait_s=system.mapper.wait_s, mapping_s=system.mapper.map_s,
-                       mapping_calls=system.mapper.calls, preload_s=system.preload_s)
+                       mapping_calls=system.mapper.calls, mapping_declined=system.mapper.declined,
+                       preload_s=system.preload_s)
         m = write_mesh(run, out, metrics) if mesh else None
         write_metrics(metrics, out)
         for obs in observers:

@@ -163,7 +163,8 @@ def run_to_folder(cfg: Config, out: str | Path, progress: bool = True, mesh: boo
         metrics = trajectory_metrics(run, out)
         metrics.update(loop_s=t_loop, resumed_from=start if ckpt is not None else None,
                        mapping_wait_s=system.mapper.wait_s, snapshot_s=system.mapper.snapshot_s,
-                       mapping_s=system.mapper.map_s, mapping_calls=system.mapper.calls, preload_s=system.preload_s)
+                       mapping_s=system.mapper.map_s, mapping_calls=system.mapper.calls,
+                       mapping_declined=system.mapper.declined, preload_s=system.preload_s)
         m = write_mesh(run, out, metrics) if mesh else None
         write_metrics(metrics, out)
         for obs in observers:

@@ -76,6 +76,11 @@ class MappingConfig:
     need_gap_iters: int = num(0, **NONNEG, doc=(
         f"{_NEED} iterations of a call made only because `need_max_gap` frames passed (a routine refresh; the young, "
         "loss-triggered and last frames' calls keep `iters`); 0: `iters`"))
+    realtime_sync: str = choice("free", ("free", "schedule"), doc=(
+        "(ours) with `data.realtime` or a live camera and `parallel`: `free`: after the warm-up the tracker never waits "
+        "for the mapper, it tracks on the newest map a finished call left, and a frame the schedule maps while a call "
+        "is still running is not mapped (counted in `metrics.json`'s `mapping_declined`); `schedule`: the recorded "
+        "run's deterministic schedule, the tracker waits for the call of frame j - max(every_frame, 2)"))
     optimizer_state: str = choice("per_call", ("per_call", "persistent"), doc=(
         "(ours) `per_call`: ESLAM's fresh Adam every call; `persistent` carries the map's Adam moments from call to "
         "call (as Co-SLAM's one map optimiser), the bundle-adjusted poses' Adam still fresh per call"))

@@ -110,3 +110,68 @@ def test_a_stopped_real_time_run_resumes_from_the_frames_it_processed(tiny_seq, 
     assert [int(r.split(",")[1]) for r in csv[1:]] == [0, 3, 4, 7, 10, 11]
     assert m["realtime"]["frames_dropped"] == 6 and m["realtime"]["frames_processed"] == 6
     assert torch.isfinite(torch.tensor(m["ate_rmse_m"]))
+
+
+def test_a_real_time_run_tracks_on_while_the_mapper_is_busy(tiny_seq, monkeypatch):
+    """``mapping.realtime_sync: free``: a mapping call held up (here until frame 5 is tracked) does not hold up the
+    tracker, which tracks frames 2-5 on the map the warm-up left, and the frames that want mapping meanwhile are
+    declined, not queued; every frame is tracked on a map a finished call left, never on one mid-call."""
+    import threading
+
+    import slam.engine.mapper as mapper_mod
+    import slam.engine.map_worker as worker_mod
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+    from tests.slam.engine.test_map_worker import _digest
+
+    _simulated(monkeypatch, 0.0)  # faster than the camera: every frame is taken
+    gate, written, seen, mapped = threading.Event(), {}, {}, []
+    real_map, real_sync = mapper_mod.map_frame, worker_mod.MapWorker.sync
+
+    def mapping(scene, index, *a, **k):
+        mapped.append(index)
+        if index == 1:
+            assert gate.wait(60), "the tracker never reached frame 5: it waited for the mapper"
+        res = real_map(scene, index, *a, **k)
+        written[index] = _digest(scene)
+        return res
+
+    def sync(self, j, idle=None):
+        out = real_sync(self, j, idle)
+        seen[j] = _digest(self.track_scene)
+        if j == 6:
+            gate.set()  # frame 5 is tracked
+        return out
+
+    monkeypatch.setattr(mapper_mod, "map_frame", mapping)
+    monkeypatch.setattr(worker_mod.MapWorker, "sync", sync)
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10", "parallel=true",
+                                    "mapper_process=false", "data.realtime=true", "mapping.every_frame=1"],
+                      profile="quality")
+    s = SLAM(cfg, load_data(cfg))
+    try:
+        s.run(progress=False)
+    finally:
+        s.close()
+        gate.set()
+    assert len(s.state.est) == 10 and not s.state.dropped
+    assert mapped[:2] == [0, 1] and not set(mapped) & {2, 3, 4, 5}
+    assert s.mapper.declined >= 4 and s.mapper.calls == len(mapped)
+    assert all(seen[j] == written[0] for j in range(1, 6))
+    for j, digest in seen.items():  # frame 0 starts the map: not tracked
+        assert j == 0 or digest in {written[k] for k in mapped if k < j}, f"frame {j} tracked on a map no finished call left"
+    assert _digest(s.scene) == written[mapped[-1]] == _digest(s.mapper.track_scene)
+
+
+def test_a_real_time_run_with_the_mapping_process_maps_or_declines_every_frame(tiny_seq, tmp_path, monkeypatch):
+    """The same in a child process (the realtime profile's): each frame the schedule maps is a call or declined."""
+    from slam.run.runner import run_to_folder
+
+    _simulated(monkeypatch, 0.0)
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10", "parallel=true",
+                                    "mapper_process=true", "data.realtime=true", "mapping.every_frame=1"],
+                      profile="quality")
+    m = run_to_folder(cfg, tmp_path / "rt", progress=False, mesh=False)
+    assert m["num_frames"] == 10 and m["realtime"]["frames_dropped"] == 0
+    assert m["mapping_calls"] + m["mapping_declined"] == 10 and m["mapping_calls"] >= 2
+    assert m["ate_rmse_m"] < 0.05
