@@ -99,16 +99,17 @@ def _stopped(out: Path, args: list[str], how: str, at: int) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("how", ["term", "kill", "raise", "cut"])
+@pytest.mark.parametrize("first,second", [("term", "raise"), ("cut", "kill")])
 def test_a_mapping_process_stopped_or_failing_twice_resumes_to_the_uninterrupted_run(tiny_seq, tmp_path,
-                                                                                    uninterrupted, how):
-    """At two frames of one run, the first stop in the fresh run and the second in its resume: SIGTERM to the
-    process group (Slurm's scancel, a systemd stop, ``kill -TERM -PGID``: 20b7b9c's child died of it, and the run
-    ended in a traceback, exit 1, with no checkpoint), SIGKILL to the mapping process, an exception inside it, and
-    its death in the middle of sending its map. Each stop says so in one line and keeps a checkpoint; the last
-    resume gives the uninterrupted run's trajectory byte for byte."""
+                                                                                    uninterrupted, first, second):
+    """Two stops of one run, the first in the fresh run and the second in its resume, four ways between the two
+    cases: SIGTERM to the process group (Slurm's scancel, a systemd stop, ``kill -TERM -PGID``: 20b7b9c's child died
+    of it, and the run ended in a traceback, exit 1, with no checkpoint), SIGKILL to the mapping process, an
+    exception inside it, and its death in the middle of sending its map. Each stop says so in one line and keeps a
+    checkpoint; the last resume gives the uninterrupted run's trajectory byte for byte."""
     out = tmp_path / "run"
-    first, second = (4, 10) if how in ("term", "kill") else (6, 12)
-    _stopped(out, ["--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), *RUN], how, first)
-    _stopped(out, ["--resume", str(out)], how, second)
+    frame = {"term": (4, 10), "kill": (4, 10), "raise": (6, 12), "cut": (6, 12)}
+    _stopped(out, ["--config", "synthetic", "--profile", "quality", "--data", str(tiny_seq), "--out", str(out), *RUN],
+             first, frame[first][0])
+    _stopped(out, ["--resume", str(out)], second, frame[second][1])
     _resume_matches(out, uninterrupted)
