@@ -52,6 +52,11 @@ class MapDone:
     snapshot: dict | None = None
 
 
+def _finished(call) -> bool:
+    """Whether a queued call (a :class:`MapDone`, a thread's future or the mapping process's call) has finished."""
+    return isinstance(call, MapDone) or call.done()
+
+
 class MapWorker:
     """Runs mapping calls on ``scene`` (the map every output is written from) and keeps ``track_scene`` (what
     the tracker reads) in step with it by the schedule above.
@@ -160,14 +165,14 @@ class MapWorker:
         return out
 
     def _upto(self, j: int) -> int:
-        upto = self._finished() if self.free else j - self.lag
+        upto = self._newest_finished() if self.free else j - self.lag
         return max(upto, self._queue[0][0]) if not self._applied_any and self._queue else upto
 
-    def _finished(self) -> int:
+    def _newest_finished(self) -> int:
         """The frame of the newest queued call that has finished with every call before it (-1: none)."""
         upto = -1
         for k, f in self._queue:
-            if not (isinstance(f, MapDone) or f.done()):
+            if not _finished(f):
                 break
             upto = k
         return upto
@@ -177,7 +182,7 @@ class MapWorker:
         is still running. A camera does not wait, so a real-time run maps the newest frame that wants mapping once
         the mapper is free instead of queueing calls the tracker would wait for; what is mapped then depends on
         timing, as the frames a real-time run takes do (:mod:`slam.engine.realtime`)."""
-        if not self.free or first or all(isinstance(f, MapDone) or f.done() for _, f in self._queue):
+        if not self.free or first or all(_finished(f) for _, f in self._queue):
             return False
         self.declined += 1
         return True
@@ -185,7 +190,7 @@ class MapWorker:
     def busy(self, j: int) -> bool:
         """Whether :meth:`sync` of frame ``j`` would wait now: a call it finishes is still running."""
         upto = self._upto(j)
-        return any(not (isinstance(f, MapDone) or f.done()) for k, f in self._queue if k <= upto)
+        return any(not _finished(f) for k, f in self._queue if k <= upto)
 
     def sync(self, j: int, idle=None) -> list[MapDone]:
         """Before tracking frame ``j``: finish the calls of frames ``<= j - lag`` (waiting if needed), make the
