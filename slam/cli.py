@@ -63,6 +63,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """``parser.parse_args(argv)``, except that a command taking ``key=value`` overrides (one that sets
+    ``overrides_anywhere``) takes them before, between and after its options, in the order given: argparse alone
+    takes one run of positionals, and ``lrslam run a=1 --no-mesh b=2`` would stop at ``b=2``."""
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        if getattr(args, "overrides_anywhere", False) and all("=" in e and not e.startswith("-") for e in extra):
+            args.overrides = [*args.overrides, *extra]
+        else:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     # before any sub-command module imports them: without the slam extra, one line and exit 2
     missing = _deps.missing_dependencies()
@@ -70,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lrslam: error: {_deps.missing_message(missing)}", file=sys.stderr)
         return 2
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = _parse(parser, argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -58,7 +58,7 @@ def register(subparsers) -> None:
     p.add_argument("--rerun-connect", metavar="ADDR", nargs="?", default=None,
                    const="rerun+http://127.0.0.1:9876/proxy", help="stream to a running Rerun viewer")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides")
-    p.set_defaults(func=main, rerun_images_every=1, rerun_jpeg=None, rerun_mesh_every=0)
+    p.set_defaults(func=main, rerun_images_every=1, rerun_jpeg=None, rerun_mesh_every=0, overrides_anywhere=True)
 
 
 def main(args) -> int:

@@ -21,7 +21,7 @@ def register(subparsers) -> None:
     p.add_argument("--config", default="replica/room0", help="preset name or YAML (default: replica/room0)")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the counts as JSON to OUT")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides, e.g. representation=eslam")
-    p.set_defaults(func=main)
+    p.set_defaults(func=main, overrides_anywhere=True)
 
 
 def _m(n: int) -> str:

@@ -84,7 +84,7 @@ def register(subparsers) -> None:
     v.add_argument("--rerun-mesh-every", metavar="N", type=int, default=0,
                    help="also log an unculled preview mesh every N keyframes (default 0: the final mesh only)")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides")
-    p.set_defaults(func=main)
+    p.set_defaults(func=main, overrides_anywhere=True)
 
 
 def main(args) -> int:

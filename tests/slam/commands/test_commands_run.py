@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from tests.slam.conftest import TINY
 
 
@@ -92,3 +94,16 @@ def test_every_detected_dataset_kind_has_its_preset():
         if kind.looks_like is not None:
             assert (CONFIG_DIR / f"{name}.yaml").is_file(), name
             assert load_config(name).data.kind == name
+
+
+def test_overrides_go_before_between_and_after_the_options():
+    """``lrslam run a=1 --no-mesh b=2``: argparse alone takes one run of positionals and stopped at ``b=2``."""
+    from slam.cli import _parse, build_parser
+
+    parser = build_parser()
+    args = _parse(parser, ["run", "seed=1", "--no-mesh", "mapping.iters=5", "--quiet", "seed=2"])
+    assert args.overrides == ["seed=1", "mapping.iters=5", "seed=2"] and args.no_mesh and args.quiet
+    assert _parse(parser, ["params", "representation=eslam", "--config", "tum", "x=1"]).overrides == \
+        ["representation=eslam", "x=1"]
+    with pytest.raises(SystemExit):
+        _parse(parser, ["run", "--no-mesj"])  # a mistyped option is still an error
