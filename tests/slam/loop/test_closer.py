@@ -55,6 +55,24 @@ def test_the_same_loops_after_a_resume_and_whatever_the_thread_timing(rpy):
     assert a["rejected"] == b["rejected"]
 
 
+def test_the_vocabulary_waits_for_the_first_candidate_and_learns_from_the_first_keyframes(rpy):
+    """Its k-means runs once a keyframe is min_gap_frames old (before, the words rank nothing), over the prefix an
+    eager vocabulary had: the first vocabulary_after keyframes."""
+    from slam.loop.vocabulary import Vocabulary
+
+    _, _, intr = rpy
+    closer = LoopCloser(CFG, intr, seed=0)
+    _feed(closer, rpy, range(CFG.min_gap_frames))
+    closer.wait()
+    assert len(closer.keyframes) >= CFG.vocabulary_after and closer.vocab is None  # the eager one had learned
+    _feed(closer, rpy, range(CFG.min_gap_frames, 60))
+    closer.wait()
+    closer.close()
+    eager = Vocabulary.learn([f.descriptors for f in closer.keyframes[:CFG.vocabulary_after]], CFG.words, 0)
+    assert np.array_equal(closer.vocab.words, eager.words) and np.array_equal(closer.vocab.idf, eager.idf)
+    assert all(h is not None for h in closer.hists) and len(closer.hists) == len(closer.keyframes)
+
+
 def test_close_loops_corrects_a_drifted_trajectory(rpy):
     frames, gt, intr = rpy
     drift = np.array([np.eye(4)] * 60)
