@@ -23,45 +23,38 @@ import numpy as np
 
 
 class Truth:
-    """The ground truth ``[M, 8]`` TUM rows, interpolated at any time (linear position, slerp rotation)."""
+    """The ground truth ``[M, 8]`` TUM rows, interpolated at any time inside its span (linear position, slerp
+    rotation: :func:`slam.data.association.poses_at`, as the TUM loader takes it at the images' times)."""
 
     def __init__(self, rows: np.ndarray):
-        from scipy.spatial.transform import Rotation, Slerp
-
         self.rows = rows[np.argsort(rows[:, 0])]
-        self.slerp = Slerp(self.rows[:, 0], Rotation.from_quat(self.rows[:, 4:8]))
 
     def at(self, t: np.ndarray) -> np.ndarray:
         """``[K]`` seconds (inside the ground truth's span) -> ``[K, 4, 4]`` camera-to-world."""
+        from slam.data.association import poses_at
+
         t = np.atleast_1d(np.asarray(t, np.float64))
-        T = np.tile(np.eye(4), (len(t), 1, 1))
-        T[:, :3, :3] = self.slerp(t).as_matrix()
-        T[:, :3, 3] = np.stack([np.interp(t, self.rows[:, 0], self.rows[:, 1 + i]) for i in range(3)], -1)
-        return T
+        return poses_at(self.rows[:, 0], self.rows[:, 1:8], t, np.inf, interpolate=True)[0]
 
     def angular_speed_deg(self, t: float, half: float = 0.03) -> float:
         """Degrees a second of the rotation over ``[t - half, t + half]``."""
+        from slam.core.pose import pose_gap
+
         a, b = self.at(np.array([t - half, t + half]))
-        return _angle_deg(a[:3, :3].T @ b[:3, :3]) / (2 * half)
-
-
-def _angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+        return pose_gap(a, b)[1] / (2 * half)
 
 
 def relative_rotation_errors(est: np.ndarray, t: np.ndarray, truth: Truth, delta: float, span: int) -> np.ndarray:
     """Degrees between the estimate's relative rotation over ``span`` frames and the ground truth's at ``t +
     delta`` (``est [N, 4, 4]``, ``t [N]`` seconds), one per frame pair inside the ground truth's span."""
+    from slam.core.pose import pose_gap
+
     lo, hi = truth.rows[0, 0], truth.rows[-1, 0]
     i = np.arange(len(t) - span)
     i = i[(t[i] + delta >= lo) & (t[i + span] + delta <= hi)]
     G = truth.at(t + delta) if len(i) else None
-    out = []
-    for a in i:
-        r_est = est[a, :3, :3].T @ est[a + span, :3, :3]
-        r_gt = G[a, :3, :3].T @ G[a + span, :3, :3]
-        out.append(_angle_deg(r_est.T @ r_gt))
-    return np.array(out)
+    return np.array([pose_gap(np.linalg.inv(est[a]) @ est[a + span], np.linalg.inv(G[a]) @ G[a + span])[1]
+                     for a in i])
 
 
 def fit_offset(est: np.ndarray, t: np.ndarray, truth: Truth, span: int = 5, grid_ms: float = 60.0,
