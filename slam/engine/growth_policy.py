@@ -11,7 +11,7 @@ comes within ``scene.grow_margin`` metres of the box (or passes it) grows by the
 ``geometry.cell_sizes``) that put it ``grow_margin`` inside again. No axis grows past ``scene.grow_max_extent``
 metres: a growth that would is cut to what fits, and an event says so (once per side).
 
-The growth itself is :meth:`slam.engine.map_worker.MapWorker.grow` (between mapping calls, every copy of the map
+:func:`grow_scene` applies a decision to a run. The growth itself is :meth:`slam.engine.map_worker.MapWorker.grow` (between mapping calls, every copy of the map
 alike; :mod:`slam.model.box_resize` for the fields). Every growth is an event in ``metrics.json``: the sides and cells,
 the new box, and the scene's parameters and field bytes after it.
 """
@@ -25,6 +25,7 @@ import torch
 
 from slam.core.camera import backproject
 from slam.core.pose import pose_to_matrix
+from slam.model.scene import scene_size
 
 #: the most points of a frame the decision looks at (a stride over rows and columns)
 MAX_POINTS = 4096
@@ -131,3 +132,15 @@ class SceneGrowth:
 
     def load_state_dict(self, state: dict) -> None:
         self.capped = set(state.get("capped", ()))
+
+
+def grow_scene(system, k: int, depth: torch.Tensor) -> None:
+    """Grow ``system``'s (a :class:`slam.engine.system.SLAM`) scene box where frame position ``k``'s depth
+    ``[H, W]`` (metres) nears it, by its ``growth`` policy: every copy of the map, the bound and the marching-cubes
+    bound alike, between mapping calls."""
+    step = system.growth.decide(k, depth, system.state.est[-1], system.intr, system.aabb)
+    if step is not None:
+        system.mapper.grow(step.lower, step.upper)
+        system.bound, system.mc_bound = grow_box(system.bound, step), grow_box(system.mc_bound, step)
+        system.aabb, system.size = system.scene.aabb.detach().cpu().clone(), scene_size(system.scene)
+        system.growth.grown(k, step, system.aabb, system.size)

@@ -95,6 +95,7 @@ class MapWorker:
                       if parallel and self.process is None else None)
         self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
         self._applied_any = False
+        self.applied = 0  # calls whose results the tracker took (sync)
         self._abort = threading.Event()  # set by close(abort=True): a call in progress stops at its next iteration
         self.wait_s = 0.0  # time the tracker spent waiting for the mapper
         self.snapshot_s = 0.0  # time spent taking and loading snapshots
@@ -177,12 +178,16 @@ class MapWorker:
             upto = k
         return upto
 
+    def idle(self) -> bool:
+        """Whether no call is running (those queued have all finished)."""
+        return all(_finished(f) for _, f in self._queue)
+
     def declines(self, first: bool) -> bool:
         """Whether a call submitted now is not made (counted in ``declined``): free mode, not the warm-up, and a call
         is still running. A camera does not wait, so a real-time run maps the newest frame that wants mapping once
         the mapper is free instead of queueing calls the tracker would wait for; what is mapped then depends on
         timing, as the frames a real-time run takes do (:mod:`slam.engine.realtime`)."""
-        if not self.free or first or all(_finished(f) for _, f in self._queue):
+        if not self.free or first or self.idle():
             return False
         self.declined += 1
         return True
@@ -202,6 +207,7 @@ class MapWorker:
             idle(j, lambda: self.busy(j))
         out = self._collect(self._upto(j))
         self._applied_any = self._applied_any or bool(out)
+        self.applied += len(out)
         return out
 
     def drain(self) -> list[MapDone]:
@@ -268,6 +274,7 @@ class MapWorker:
         if state["track_scene"] is not None:
             load_scene_state(self.track_scene, state["track_scene"])
         self._applied_any = bool(state["applied_any"])
+        self.applied = 2 if self._applied_any else 0  # (a count a resumed real-time run's warm-up reads, system.py)
         self.moments = MapMoments(state.get("moments"))  # a checkpoint from before the key: none carried
         self.moments.check(self.scene)
         self._queue = []

@@ -19,7 +19,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["Replay", "arrival_times", "latency_summary", "pass_over", "take_live", "take_replayed"]
+__all__ = ["Replay", "arrival_times", "latency_summary", "note_latency", "pass_over", "take_live", "take_next",
+           "take_replayed"]
 
 
 def arrival_times(indices: Sequence[int], timestamps: Sequence[float] | None) -> np.ndarray:
@@ -118,3 +119,23 @@ def take_live(system, k: int) -> float | None:
         return None
     pass_over(system, list(range(k, len(system.indices) - 1)))
     return ds.arrived[system.indices[k]]
+
+
+def take_next(system, k: int) -> tuple[bool, float | None]:
+    """The frame at position ``k`` of ``system`` (a :class:`slam.engine.system.SLAM`) to process next: ``(whether
+    there is one, its arrival time or None)``. A live camera's (:func:`take_live`) or a replay's
+    (:func:`take_replayed`) frame arrives; a recorded run's frames are all there (no arrival time)."""
+    if system.live:
+        arrived = take_live(system, k)
+        return arrived is not None, arrived
+    if k >= len(system.indices):
+        return False, None
+    return True, take_replayed(system, k) if system.replay is not None else None
+
+
+def note_latency(system, arrived: float | None) -> None:
+    """Record the latency (seconds) of the frame just given its pose, which arrived at ``arrived`` (None: a
+    recorded run, no latency) on the replay's clock or a live camera's (``time.perf_counter``)."""
+    if arrived is not None:
+        now = system.replay.now() if system.replay is not None else time.perf_counter()
+        system.state.latency.append(float(now - arrived))  # a plain float: checkpoints

@@ -6,13 +6,13 @@ submit for mapping. Writing a run's outputs and checkpoints lives in :mod:`slam.
 
 Frames are read ahead (:mod:`slam.engine.frames`); mapping runs inline (ESLAM's schedule) or beside the tracker
 (``parallel``), both deterministic (:mod:`slam.engine.map_worker`); loop closure (``loops``) watches beside the
-tracker and corrects the trajectory at the end (:mod:`slam.loop`).
+tracker and corrects the trajectory at the end (:mod:`slam.loop`). A real-time run does not wait for the first
+map: the frames that arrive meanwhile are tracked by depth odometry (``mapping.realtime_warmup``).
 
-Robustness: a frame that cannot be read is not tracked or mapped (its pose is the prediction: constant velocity
-between two trusted poses, or the previous pose); a frame without valid depth is tracked on its colour and not mapped
-(``tracking.without_depth``); a tracking result that is not finite falls back to the prediction and the frame is not
-mapped; a mapping step whose loss or gradient is not finite is skipped, so the map is never written with NaNs. Each
-such event is logged and listed in ``metrics.json``."""
+Robustness: an unreadable frame is not tracked or mapped (its pose is the prediction: constant velocity between two
+trusted poses, or the previous pose); a frame without valid depth is tracked on its colour, not mapped
+(``tracking.without_depth``); a non-finite tracking result falls back to the prediction, not mapped; a mapping step
+whose loss or gradient is not finite is skipped (no NaN in the map). Each such event is logged, in ``metrics.json``."""
 
 from __future__ import annotations
 
@@ -26,19 +26,20 @@ import torch
 from slam.config import Config
 from slam.core.pose import matrix_to_pose, pose_to_matrix
 from slam.engine.frames import FrameSource, LoadedFrame, first_readable
-from slam.engine.growth_policy import SceneGrowth, grow_box
+from slam.engine.growth_policy import SceneGrowth, grow_scene
 from slam.engine.keyframes import KeyframeStore
 from slam.engine.map_call import MapJob
 from slam.engine.map_worker import MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
-from slam.engine.realtime import Replay, arrival_times, take_live, take_replayed
+from slam.engine.realtime import Replay, arrival_times, note_latency, take_next
 from slam.engine.rehearsal import preload
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import call_iters, is_keyframe
 from slam.engine.setup import check_edges, frame_indices, initial_pose, scene_bound
 from slam.engine.state import RunState, TooManyBadFrames, check_bad_frames, live_ate
-from slam.engine.tracking import Timeline, predict, track_with_recovery, track_without_depth
+from slam.engine.tracking import (Timeline, predict, track_by_odometry, track_with_recovery,
+                                  track_without_depth)
 from slam.engine.tracking_guard import TrackingGuard
 from slam.engine.system_state import load_system_state, system_state
 from slam.engine.view import RunView, view_of
@@ -95,8 +96,7 @@ class SLAM:
         self.replay = Replay(arrival_times(self.selection, ts)) if realtime and not self.live else None
         t0 = time.perf_counter()
         frame0 = (first.color.to(self.device), first.depth.to(self.device), matrix_to_pose(self.c2w0))
-        self.mapper = None
-        self.loops = loop_closer(cfg, self.intr)
+        self.mapper, self.loops = None, loop_closer(cfg, self.intr)
         try:  # from here on a reader thread, a mapper thread or process and a spill file exist: a failure closes them
             self.mapper = MapWorker(self.scene, self.keyframes, cfg, self.intr, self.map_gen, parallel=cfg.parallel,
                                     rehearsal=frame0 if cfg.preload_kernels else None,
@@ -107,6 +107,7 @@ class SLAM:
             raise
         self.preload_s = time.perf_counter() - t0
         self.guard = TrackingGuard(cfg.tracking)
+        self.odometry_first = self.mapper.free and cfg.mapping.realtime_warmup == "odometry"  # track_by_odometry
         self.timeline = Timeline(dt=self._dt, keyframes=self.keyframes_when_idle,
                                  frame_of=lambda j: int(self.indices[j]), event=self._event)
         auto = cfg.scene.bound == "auto"  # a cube around the first camera: its half-size is the reach it was sized to
@@ -146,12 +147,15 @@ class SLAM:
     # ------------------------------------------------------------------------------------------------- a frame
     def step(self, k: int) -> FrameRecord:
         """Process the k-th selected frame (track, then map if scheduled); returns what happened."""
-        self._apply(self.mapper.sync(k, idle=self.frames.read_while))  # reads ahead while it waits (prefetch_in)
+        odometry = self.odometry_first and self.mapper.applied < 2  # the map has not seen a frame beyond the first
+        if not (odometry and self.mapper.busy(k)):  # never waits for the warm-up
+            self._apply(self.mapper.sync(k, idle=self.frames.read_while))  # reads ahead while it waits (prefetch_in)
+        warming = odometry and self.mapper.applied < 2
         frame = self.frames.get(k)
-        pose, tracked, trusted = self._pose(k, frame)
+        pose, tracked, trusted = self._pose(k, frame, warming)
         self.state.est.append(pose.cpu())
         self.state.trusted.append(trusted)
-        mapped = self._submit(k, frame, trusted)
+        mapped = self._submit(k, frame, trusted, warming)
         self.state.sizes.append(list(self.size))
         if not self.mapper.parallel:
             self._apply(self.mapper.sync(k + 1))
@@ -160,9 +164,10 @@ class SLAM:
                            pose=pose_to_matrix(self.state.est[-1]), gt=self.gt[k] if self.gt is not None else None,
                            tracked=tracked, mapped=mapped)
 
-    def _pose(self, k: int, frame: LoadedFrame) -> tuple[torch.Tensor, bool, bool]:
+    def _pose(self, k: int, frame: LoadedFrame, warming: bool) -> tuple[torch.Tensor, bool, bool]:
         """Frame ``k``'s pose ``[7]``, whether it was tracked and whether it is trusted (a frame that could not be
-        tracked gets the prediction, untrusted; the first frame with depth starts the map, trusted)."""
+        tracked gets the prediction, untrusted; the first frame with depth starts the map, trusted); ``warming``:
+        the first map is not built yet, depth odometry instead of the map (:func:`track_by_odometry`)."""
         st = self.state
         if not frame.ok:
             st.bad_frames += 1
@@ -181,6 +186,10 @@ class SLAM:
             reason = "no valid depth" if not frame.has_depth else "no map yet (no earlier frame had depth)"
             self._event(k, f"{reason}: not tracked, {what} used")
             return pred, False, frame.has_depth
+        if warming:
+            pose, ok = track_by_odometry(k, frame.depth if frame.has_depth else None, self.intr, st, pred, what,
+                                         self.cfg, self.guard, self.timeline)
+            return pose, frame.has_depth, ok
         inp = TrackInput(self.mapper.track_scene, frame.color, frame.depth, self.intr, self.cfg, self.gen, self.guard)
         if not frame.has_depth:
             return (*track_without_depth(k, inp, st, pred, what, self.timeline), False)
@@ -189,37 +198,29 @@ class SLAM:
                             "inliers": res.inliers, "trusted": trusted})
         return res.pose, True, trusted
 
-    def _submit(self, k: int, frame: LoadedFrame, trusted: bool) -> bool:
-        """Queue the mapping call of frame ``k`` when the schedule maps it; returns whether it did."""
+    def _submit(self, k: int, frame: LoadedFrame, trusted: bool, warming: bool) -> bool:
+        """Queue the mapping call of frame ``k`` when the schedule maps it; returns whether it did. ``warming``:
+        frame ``k`` was tracked by depth odometry; the first such frame once the warm-up call has finished is mapped
+        as a keyframe (tracking goes on by odometry until that call has finished too, so the map reaches the camera)."""
         st, cfg = self.state, self.cfg
-        if not (frame.ok and frame.has_depth and trusted):
+        if not (frame.ok and frame.has_depth and trusted) or (warming and not self.mapper.idle()):
             return False
-        self._grow(k, frame.depth)
+        grow_scene(self, k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
         if self.loops is not None:  # a loop keyframe, where the camera moved (slam.loop.closer): queued, not waited
             self.loops.offer(k, frame.color, frame.depth, pose_to_matrix(st.est[-1]).numpy(), trusted)
         first = not st.initialized
-        iters = call_iters(k, st, cfg.mapping, self._n_frames())
+        iters = 0 if warming else call_iters(k, st, cfg.mapping, self._n_frames())
         if iters is None or self.mapper.declines(first):  # declines: a real-time run's busy mapper (map_worker)
             return False
         st.last_mapped = k
-        keyframe = is_keyframe(k, st, cfg.mapping, first)
+        keyframe = warming or is_keyframe(k, st, cfg.mapping, first)
         if keyframe:
             st.last_keyframe = k
         self.mapper.submit(MapJob(k, frame.color, frame.depth, st.est[-1], first=first, keyframe=keyframe,
                                   iters=iters))
         st.initialized = True
         return True
-
-    def _grow(self, k: int, depth: torch.Tensor) -> None:
-        """Grow the scene box where frame ``k``'s depth nears it (:mod:`slam.engine.growth_policy`): every copy of
-        the map, the bound and the marching-cubes bound alike, between mapping calls."""
-        step = self.growth.decide(k, depth, self.state.est[-1], self.intr, self.aabb)
-        if step is not None:
-            self.mapper.grow(step.lower, step.upper)
-            self.bound, self.mc_bound = grow_box(self.bound, step), grow_box(self.mc_bound, step)
-            self.aabb, self.size = self.scene.aabb.detach().cpu().clone(), scene_size(self.scene)
-            self.growth.grown(k, step, self.aabb, self.size)
 
     def finish(self) -> None:
         """Wait for the mapper and apply its last results: at the end of the sequence, before the final outputs.
@@ -253,20 +254,13 @@ class SLAM:
         try:
             k = start
             while True:  # not a range: a real-time replay passes over frames as it goes, a live camera adds them
-                if self.live:
-                    arrived = take_live(self, k)
-                    if arrived is None:
-                        break
-                elif k >= len(self.indices):
+                more, arrived = take_next(self, k)
+                if not more:
                     break
-                else:
-                    arrived = take_replayed(self, k) if self.replay is not None else None
                 bar.total = len(self.indices)
                 t0 = time.perf_counter()
                 rec = self.step(k)
-                if arrived is not None:
-                    now = self.replay.now() if self.replay is not None else time.perf_counter()
-                    self.state.latency.append(float(now - arrived))  # a plain float: checkpoints
+                note_latency(self, arrived)
                 if self.cfg.trim_memory_every and (k + 1) % self.cfg.trim_memory_every == 0:
                     release_freed_memory()  # bounds the heap's fragmentation on long runs (slam.engine.runtime)
                 rec.dt = time.perf_counter() - t0

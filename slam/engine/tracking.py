@@ -1,18 +1,19 @@
 """Tracking one frame the way the loop does: predict, start from depth ICP, track, check, recover, relocalise.
 
 :func:`predict` gives the motion model's pose; :func:`track_without_depth` tracks a frame without valid depth on
-its colour; :func:`track_with_recovery` tracks from the ICP start
-(:func:`slam.engine.recovery.icp_start`), checks the result with the guard, re-tracks an implausible one
-(:func:`slam.engine.recovery.recover`) and, after ``tracking.relocalize_after`` untrusted frames in a row,
-relocalises against the keyframes (:func:`slam.engine.recovery.relocalise`). It reads and updates only the
+its colour; :func:`track_by_odometry` a frame of a real-time run that arrives before the first map exists;
+:func:`track_with_recovery` tracks from the ICP start (:func:`slam.engine.recovery.icp_start`), checks the result
+with the guard, re-tracks an implausible one (:func:`slam.engine.recovery.recover`) and, after
+``tracking.relocalize_after`` untrusted frames in a row, relocalises against the keyframes
+(:func:`slam.engine.recovery.relocalise`). It reads and updates only the
 :class:`slam.engine.state.RunState` it is handed (``reloc_tried_at``) and the guard (its history restarts after a
 relocalisation); everything it decides is an event.
 """
 
 from __future__ import annotations
 
+import logging
 import math
-
 from dataclasses import dataclass
 from typing import Callable
 
@@ -22,6 +23,9 @@ from slam.core.pose import constant_velocity
 from slam.engine.recovery import TrackInput, icp_start, recover, relocalise
 from slam.engine.state import RunState
 from slam.engine.tracker import TrackResult, track_frame, track_on_color
+from slam.engine.tracking_guard import TrackingGuard
+
+log = logging.getLogger("slam")
 
 
 def predict(est: list, trusted: list, init: str) -> tuple[torch.Tensor, str]:
@@ -85,6 +89,41 @@ def track_with_recovery(k: int, inp: TrackInput, st: RunState, pred: torch.Tenso
         lost += f"; relocalisation after {untrusted} untrusted frames found no plausible pose"
     run.event(k, f"{lost}, frame not mapped", lost=True)
     return res, False
+
+
+def track_by_odometry(k: int, depth: torch.Tensor | None, intr, st: RunState, pred: torch.Tensor, what: str, cfg,
+                      guard: TrackingGuard, run: Timeline) -> tuple[torch.Tensor, bool]:
+    """Frame position ``k``'s pose while the first map is still being built (``mapping.realtime_warmup:
+    odometry``): depth ICP (``depth`` ``[H, W]`` metres; None: the frame has no valid depth) against the last
+    trusted frame with depth, started at the prediction ``pred``, its motion chained onto that frame's pose; no map
+    is read. A frame without depth, a registration that does not converge or one that moves faster than the guard
+    allows keeps the prediction, untrusted. A trusted result becomes the next frame's ICP reference
+    (``st.prev_depth``); the frame is not mapped (the mapper is busy). Each frame's outcome is an event
+    (``odometry``: whether its pose is the registration's; logged at INFO, as it happens to every frame of the
+    warm-up).
+
+    Returns:
+        ``(pose [7], trusted)``.
+    """
+    frame = run.frame_of(k)
+    if depth is None:
+        run.event(k, f"no valid depth and no map yet: not tracked, {what} used", odometry=False)
+        return pred, False
+    tc, ref = cfg.tracking, int(st.prev_depth_k)
+    pose, ok = icp_start(st.est[ref], st.prev_depth, pred, depth, intr, hold_pose=st.est[-1], hold=tc.icp_hold,
+                         smooth=tc.icp_normals)
+    why = [] if ok else ["depth ICP did not converge"]
+    last = st.last_trusted()
+    if ok and last >= 0:
+        why = guard.reasons(0.0, 1.0, st.est[last], pose, run.dt(k, last), use_history=False)
+    if why:
+        what = f"first map not built yet, depth odometry not taken ({'; '.join(why)}): {what} used"
+    else:
+        what = f"first map not built yet: tracked by depth odometry against frame {run.frame_of(ref)}"
+        st.prev_depth, st.prev_depth_k = depth, k
+    log.info("frame %d: %s", frame, what)
+    st.events.append({"frame": frame, "event": what, "odometry": not why})
+    return (pred, False) if why else (pose, True)
 
 
 def _relocalise(inp: TrackInput, run: Timeline, anchor: torch.Tensor, dt: float, pred: torch.Tensor):

@@ -115,7 +115,8 @@ def loop_truth(summary: dict, gt: np.ndarray) -> None:
 def write_frames(run, out: Path) -> None:
     """``frames.csv``: one row per processed frame (position, dataset frame, wall seconds, trusted, what it was
     tracked on (``depth``; ``color`` for a frame without depth whose colour pose was taken, ``prediction`` where colour
-    tracking ran and was not taken; empty where nothing was tracked), the tracking's best loss (the depth tracking
+    tracking ran and was not taken; ``odometry`` for a real-time run's frame before the first map, tracked by depth
+    ICP, ``prediction`` where that was not taken; empty where nothing was tracked), the tracking's best loss (the depth tracking
     loss, or the colour error for colour tracking), the iterations run and the inlier share (colour: the share of the
     pixels that see the map), and the scene's parameters and field bytes after the frame: they change where the box
     grew, :mod:`slam.engine.growth_policy`), and ``loop_with``: the dataset frame a loop closed this frame with."""
@@ -125,6 +126,8 @@ def write_frames(run, out: Path) -> None:
     st = run.state
     tracked = {t["frame"]: dict(t, on="depth") for t in st.tracking}
     for e in st.events:
+        if "odometry" in e:  # a real-time run's frame before the first map (slam.engine.tracking.track_by_odometry)
+            tracked[e["frame"]] = {"on": "odometry" if e["odometry"] else "prediction"}
         if "color_loss" in e:
             tracked[e["frame"]] = {"on": "color" if e["color_tracked"] else "prediction", "loss": e["color_loss"],
                                    "iters": e["color_iters"], "inliers": e["color_share"]}

@@ -81,6 +81,11 @@ class MappingConfig:
         "for the mapper, it tracks on the newest map a finished call left, and a frame the schedule maps while a call "
         "is still running is not mapped (counted in `metrics.json`'s `mapping_declined`); `schedule`: the recorded "
         "run's deterministic schedule, the tracker waits for the call of frame j - max(every_frame, 2)"))
+    realtime_warmup: str = choice("odometry", ("odometry", "wait"), doc=(
+        "(ours) with `realtime_sync: free`: the frames that arrive while the first map is built (the warm-up call) "
+        "are tracked by depth ICP against the frame before them, chained from the first frame, and not mapped "
+        "(`odometry`); `wait`: the tracker waits for the warm-up and goes on from the newest frame then, a jump of "
+        "as long as the warm-up took"))
     optimizer_state: str = choice("per_call", ("per_call", "persistent"), doc=(
         "(ours) `per_call`: ESLAM's fresh Adam every call; `persistent` carries the map's Adam moments from call to "
         "call (as Co-SLAM's one map optimiser), the bundle-adjusted poses' Adam still fresh per call"))
