@@ -114,42 +114,53 @@ def profiles() -> str:
                 "--out benchmarks/results/profile_targets")])
 
 
+#: the real-time replay's runs: (window label or None for the folder's name, setting, file, its command's options)
+REALTIME_RUNS = [
+    (None, "free, odometry (default)", "default", ""),
+    (None, "free, wait", "warmup_wait", "--set mapping.realtime_warmup=wait "),
+    (None, "schedule", "schedule", "--set mapping.realtime_sync=schedule "),
+    ("room", "free, odometry (default)", "room_default", "--config synthetic --data bundled "
+                                                         "--set mapping.realtime_warmup=odometry "),
+    ("room", "free, wait", "room_warmup_wait", "--config synthetic --data bundled --set mapping.realtime_warmup=wait "),
+    ("walk300", "free, odometry (default)", "walk300_default", "--config synthetic/walk --data bundled --set "
+                                                               "mapping.realtime_warmup=odometry data.max_frames=300 "),
+    ("walk300", "free, wait", "walk300_warmup_wait", "--config synthetic/walk --data bundled --set "
+                                                     "mapping.realtime_warmup=wait data.max_frames=300 "),
+]
+
+
 def realtime() -> str:
-    runs = {"free, odometry (default)": _json("realtime_replay/default.json"),
-            "free, wait": _json("realtime_replay/warmup_wait.json"),
-            "schedule": _json("realtime_replay/schedule.json")}
+    runs = [(label, setting, name, opts, _json(f"realtime_replay/{name}.json"))
+            for label, setting, name, opts in REALTIME_RUNS]
     lines = ["`lrslam run --data DIR --realtime` replays a folder at its recorded rate (30 Hz): a frame that arrives "
              "while the system is busy is dropped, and the newest is processed next. `mapping.realtime_sync`: `free` "
              "tracks on while the mapper is busy and maps only when it is free, `schedule` keeps the recorded run's "
              "schedule (the tracker waits for the call of two frames before). `mapping.realtime_warmup` (with "
              "`free`): `odometry` tracks the frames that arrive while the first map is built by depth ICP, `wait` "
-             "waits for it. Mean ± std over seeds; the three settings measured on the same machine.", "",
-             _stamp_line(runs["free, odometry (default)"]["stamp"]), "",
+             "waits for it. The fr1_rpy windows (tum_fr1_rpy: pairs 125-224, tum_fr1_rpy_0_124: pairs 0-124), the "
+             "bundled synthetic room and the synthetic walk's first 300 frames. Mean ± std over seeds; every row "
+             "measured on the same machine.", "",
+             _stamp_line(runs[0][4]["stamp"]), "",
              "| window | `realtime_sync`, `realtime_warmup` | seeds | frames processed | dropped | latency s, median / "
              "95th percentile | mapping calls / declined | ATE over the processed frames, cm | per seed |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for name in runs["free, odometry (default)"]["sequences"]:
-        for sync, d in runs.items():
-            seq = d["sequences"][name]
+    rows = []
+    for order, (label, setting, _, _, d) in enumerate(runs):
+        for i, (seq_name, seq) in enumerate(d["sequences"].items()):
             s, rs = seq["summary"], seq["runs"]
             per_seed = ", ".join(f"{r['ate_rmse_cm']:.1f}" for r in rs)
             calls = (f"{s['mapping_calls']['mean']:.1f} / {s['mapping_declined']['mean']:.1f}"
                      if "mapping_calls" in s else "")
-            lines.append(f"| {name} | {sync} | {len(rs)} | {s['frames_processed']['mean']:.1f} ± "
-                         f"{s['frames_processed']['std']:.1f} | {s['frames_dropped']['mean']:.1f} | "
-                         f"{s['latency_median_s']['mean']:.3f} / {s['latency_p95_s']['mean']:.3f} | {calls} | "
-                         f"{s['ate_rmse_cm']['mean']:.1f} ± {s['ate_rmse_cm']['std']:.1f} | {per_seed} |")
-    return "\n".join(lines + ["", _source("realtime_replay/default.json",
-                                          "python benchmarks/realtime_replay.py --config tum --seeds 5 "
-                                          "--out benchmarks/results/realtime_replay/default.json"), "",
-                               _source("realtime_replay/warmup_wait.json",
-                                       "python benchmarks/realtime_replay.py --config tum --seeds 5 --set "
-                                       "mapping.realtime_warmup=wait --out benchmarks/results/realtime_replay/"
-                                       "warmup_wait.json"), "",
-                               _source("realtime_replay/schedule.json",
-                                       "python benchmarks/realtime_replay.py --config tum --seeds 5 --set "
-                                       "mapping.realtime_sync=schedule --out benchmarks/results/realtime_replay/"
-                                       "schedule.json")])
+            rows.append(((label or "", i, order), f"| {label or seq_name} | {setting} | {len(rs)} | "
+                         f"{s['frames_processed']['mean']:.1f} ± {s['frames_processed']['std']:.1f} | "
+                         f"{s['frames_dropped']['mean']:.1f} | {s['latency_median_s']['mean']:.3f} / "
+                         f"{s['latency_p95_s']['mean']:.3f} | {calls} | {s['ate_rmse_cm']['mean']:.1f} ± "
+                         f"{s['ate_rmse_cm']['std']:.1f} | {per_seed} |"))
+    lines += [row for _, row in sorted(rows, key=lambda r: r[0])]
+    for _, _, name, opts, _ in runs:
+        lines += ["", _source(f"realtime_replay/{name}.json", f"python benchmarks/realtime_replay.py {opts or '--config tum '}"
+                                                                f"--seeds 5 --out benchmarks/results/realtime_replay/{name}.json")]
+    return "\n".join(lines)
 
 
 def walk() -> str:
