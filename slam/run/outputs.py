@@ -65,6 +65,8 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
                                 if run.state.tracking else None),
         "frames_lost": sum(1 for e in run.state.events if e.get("lost")),
         "frames_recovered": sum(1 for e in run.state.events if e.get("recovered")),
+        # a real-time run's frames before the map reached the camera (slam.engine.tracking.track_by_odometry)
+        "frames_odometry": sum(1 for e in run.state.events if e.get("odometry")),
     }
     if run.state.loop_summary is not None:
         metrics["loops"] = run.state.loop_summary
