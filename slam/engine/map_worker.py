@@ -12,6 +12,8 @@ the frame numbers, never by timing, so a parallel run repeats exactly too. A rea
 live camera, whose frames are taken by timing anyway) uses ``free`` mode by default (``mapping.realtime_sync``): the
 tracker takes whichever calls have finished and never waits after the warm-up, and a frame is mapped only when no
 call is running (:meth:`MapWorker.declines`), so the frames a busy mapper would have made it wait for are tracked.
+With ``mapping.realtime_warmup: odometry`` it does not wait for the warm-up either: the loop calls :meth:`sync` once
+:meth:`busy` says it would not wait, tracking the frames meanwhile by depth odometry (``track_by_odometry``).
 
 The tracker never sees a half-written map: in parallel mode it tracks on its own copy of the scene, which is
 overwritten only from a snapshot the mapper took at the end of a call (a ``state_dict`` copy, a few MB), while
