@@ -156,6 +156,8 @@ class SLAM:
         self.state.est.append(pose.cpu())
         self.state.trusted.append(trusted)
         mapped = self._submit(k, frame, trusted, warming)
+        if warming and not mapped and self.mapper.applied and self.mapper.idle():  # no frame to bridge with (no
+            self.odometry_first = False  # depth, or odometry failed): the tracker takes over on the first map
         self.state.sizes.append(list(self.size))
         if not self.mapper.parallel:
             self._apply(self.mapper.sync(k + 1))

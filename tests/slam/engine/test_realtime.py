@@ -231,6 +231,57 @@ def test_the_frames_before_the_map_reaches_the_camera_are_tracked_by_depth_odome
     assert [r[4] for r in rows[1:]] == ["prediction" if j in no_depth else "odometry" for j in range(1, 9)] + ["depth"]
 
 
+def test_a_start_with_no_frame_to_bridge_with_hands_over_to_the_tracker(tiny_seq, monkeypatch):
+    """The first frame after the warm-up has no depth, so it cannot be the bridge: odometry does not go on waiting
+    for one (a camera whose depth stays out would never be tracked on the map), the tracker takes over on the first
+    map from the next frame, and the frames after it are tracked and mapped as usual."""
+    import threading
+    import time
+
+    import slam.engine.mapper as mapper_mod
+    from slam.engine.setup import load_data
+    from slam.engine.system import SLAM
+    from tests.slam.conftest import EditedDataset
+
+    _simulated(monkeypatch, 0.0)
+    gate, mapped = threading.Event(), []
+    real_map = mapper_mod.map_frame
+
+    def mapping(scene, index, *a, **k):
+        mapped.append(index)
+        if index == 0:
+            assert gate.wait(60), "the tracker never reached frame 3: it waited for the warm-up"
+        return real_map(scene, index, *a, **k)
+
+    monkeypatch.setattr(mapper_mod, "map_frame", mapping)
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=8", "parallel=true",
+                                    "mapper_process=false", "data.realtime=true", "mapping.every_frame=1"],
+                      profile="quality")
+    s = SLAM(cfg, EditedDataset(load_data(cfg), no_depth=(4,)))
+    real_step = s.step
+
+    def step(k):
+        rec = real_step(k)
+        if k == 3:
+            gate.set()
+            while not s.mapper.idle():
+                time.sleep(0.01)
+        return rec
+
+    s.step = step
+    try:
+        s.run(progress=False)
+    finally:
+        s.close()
+        gate.set()
+    odo = {e["frame"]: e["odometry"] for e in s.state.events if "odometry" in e}
+    assert odo == {1: True, 2: True, 3: True, 4: False}
+    assert {e["frame"] for e in s.state.tracking} == {5, 6, 7} and all(s.state.trusted[5:])
+    assert mapped[0] == 0 and 4 not in mapped and 5 in mapped
+    assert s.gt is not None and all(
+        (pose_to_matrix(s.state.est[j])[:3, 3] - s.gt[j][:3, 3]).norm() < 0.02 for j in (5, 6, 7))
+
+
 def test_a_real_time_run_with_the_mapping_process_maps_or_declines_every_frame(tiny_seq, tmp_path, monkeypatch):
     """The same in a child process (the realtime profile's): each frame the schedule maps is a call or declined,
     or was tracked by depth odometry before the map reached the camera (the first of those after the warm-up, the
