@@ -96,7 +96,6 @@ class MapWorker:
         self._pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="lrslam-map")
                       if parallel and self.process is None else None)
         self._queue: list[tuple[int, concurrent.futures.Future | MapDone]] = []
-        self._applied_any = False
         self.applied = 0  # calls whose results the tracker took (sync)
         self._abort = threading.Event()  # set by close(abort=True): a call in progress stops at its next iteration
         self.wait_s = 0.0  # time the tracker spent waiting for the mapper
@@ -169,7 +168,7 @@ class MapWorker:
 
     def _upto(self, j: int) -> int:
         upto = self._newest_finished() if self.free else j - self.lag
-        return max(upto, self._queue[0][0]) if not self._applied_any and self._queue else upto
+        return max(upto, self._queue[0][0]) if not self.applied and self._queue else upto
 
     def _newest_finished(self) -> int:
         """The frame of the newest queued call that has finished with every call before it (-1: none)."""
@@ -208,7 +207,6 @@ class MapWorker:
         if idle is not None:
             idle(j, lambda: self.busy(j))
         out = self._collect(self._upto(j))
-        self._applied_any = self._applied_any or bool(out)
         self.applied += len(out)
         return out
 
@@ -264,7 +262,7 @@ class MapWorker:
         track = ({k: v.detach().cpu() for k, v in self.track_scene.state_dict().items()} if self.parallel else None)
         if self.process is not None and self.process.started:  # the child holds them (sent on request only)
             self.moments.state = self.process.moments()
-        return {"pending": pending, "applied_any": bool(self._applied_any), "track_scene": track,
+        return {"pending": pending, "applied_any": bool(self.applied), "track_scene": track,
                 "moments": self.moments.cpu_state()}
 
     def load_state_dict(self, state: dict) -> None:
@@ -275,8 +273,7 @@ class MapWorker:
             RuntimeError: the tracker's map or the carried moments do not fit this scene (another config)."""
         if state["track_scene"] is not None:
             load_scene_state(self.track_scene, state["track_scene"])
-        self._applied_any = bool(state["applied_any"])
-        self.applied = 2 if self._applied_any else 0  # (a count a resumed real-time run's warm-up reads, system.py)
+        self.applied = int(bool(state["applied_any"]))  # the count is not kept: whether any was
         self.moments = MapMoments(state.get("moments"))  # a checkpoint from before the key: none carried
         self.moments.check(self.scene)
         self._queue = []

@@ -43,6 +43,8 @@ def load_system_state(s, run: dict, scene: dict) -> None:
     try:
         load_scene_state(s.scene, scene)
         s.mapper.load_state_dict(run)
+        if s.mapper.applied:  # the first map was taken before the stop: no warm-up odometry (track_by_odometry)
+            s.odometry_first = False
     except RuntimeError as exc:  # missing keys or other shapes: not this config's scene
         first = str(exc).strip().splitlines()[0]
         raise SlamInputError(f"the checkpoint's scene does not fit this run's config ({first})") from None

@@ -164,26 +164,21 @@ def test_a_real_time_run_tracks_on_while_the_mapper_is_busy(tiny_seq, monkeypatc
     assert _digest(s.scene) == written[mapped[-1]] == _digest(s.mapper.track_scene)
 
 
-@pytest.mark.parametrize("no_depth", [(), (3,)])
-def test_the_frames_before_the_map_reaches_the_camera_are_tracked_by_depth_odometry(tiny_seq, tmp_path, monkeypatch,
-                                                                                   no_depth):
-    """``mapping.realtime_warmup: odometry``: while the warm-up call runs (held here until frame 5 is posed) the
-    frames that arrive are taken, not waited over: each is registered by depth ICP to the frame before it, chained
-    from frame 0, without the map and not mapped. The first such frame once the warm-up has finished (6) is mapped,
-    the bridge, and odometry goes on until that call has finished too (held until frame 8 is posed); the tracker then
-    takes over on a map that has seen where the camera is. A frame without depth among them keeps the prediction,
-    untrusted, and the chain goes on from the frame before it."""
+def _run_holding_calls(tiny_seq, monkeypatch, frames: int, no_depth: tuple, release: dict):
+    """A real-time run (a mapping thread, a simulated clock faster than the camera) of the tiny room's first
+    ``frames`` frames, those in ``no_depth`` without depth, in which the mapping call of frame ``release[k]`` is
+    held until frame ``k`` is posed, and frame ``k + 1`` is taken only once that call has finished, so which frames
+    arrive while a call runs is fixed. Returns the (closed) system and the frames mapped, in order."""
     import threading
     import time
 
     import slam.engine.mapper as mapper_mod
     from slam.engine.setup import load_data
     from slam.engine.system import SLAM
-    from slam.run.outputs import write_frames
     from tests.slam.conftest import EditedDataset
 
     _simulated(monkeypatch, 0.0)
-    gates, mapped = {0: threading.Event(), 6: threading.Event()}, []
+    gates, mapped = {c: threading.Event() for c in release.values()}, []
     real_map = mapper_mod.map_frame
 
     def mapping(scene, index, *a, **k):
@@ -193,7 +188,7 @@ def test_the_frames_before_the_map_reaches_the_camera_are_tracked_by_depth_odome
         return real_map(scene, index, *a, **k)
 
     monkeypatch.setattr(mapper_mod, "map_frame", mapping)
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=10", "parallel=true",
+    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], f"data.max_frames={frames}", "parallel=true",
                                     "mapper_process=false", "data.realtime=true", "mapping.every_frame=1"],
                       profile="quality")
     s = SLAM(cfg, EditedDataset(load_data(cfg), no_depth=no_depth))
@@ -201,8 +196,8 @@ def test_the_frames_before_the_map_reaches_the_camera_are_tracked_by_depth_odome
 
     def step(k):
         rec = real_step(k)
-        if k in (5, 8):  # let the call held go, and wait until it has finished: which frame comes next is fixed
-            gates[0 if k == 5 else 6].set()
+        if k in release:
+            gates[release[k]].set()
             while not s.mapper.idle():
                 time.sleep(0.01)
         return rec
@@ -214,6 +209,21 @@ def test_the_frames_before_the_map_reaches_the_camera_are_tracked_by_depth_odome
         s.close()
         for g in gates.values():
             g.set()
+    return s, mapped
+
+
+@pytest.mark.parametrize("no_depth", [(), (3,)])
+def test_the_frames_before_the_map_reaches_the_camera_are_tracked_by_depth_odometry(tiny_seq, tmp_path, monkeypatch,
+                                                                                   no_depth):
+    """``mapping.realtime_warmup: odometry``: while the warm-up call runs (held here until frame 5 is posed) the
+    frames that arrive are taken, not waited over: each is registered by depth ICP to the frame before it, chained
+    from frame 0, without the map and not mapped. The first such frame once the warm-up has finished (6) is mapped,
+    the bridge, and odometry goes on until that call has finished too (held until frame 8 is posed); the tracker then
+    takes over on a map that has seen where the camera is. A frame without depth among them keeps the prediction,
+    untrusted, and the chain goes on from the frame before it."""
+    from slam.run.outputs import write_frames
+
+    s, mapped = _run_holding_calls(tiny_seq, monkeypatch, 10, no_depth, {5: 0, 8: 6})
     assert len(s.state.est) == 10 and not s.state.dropped
     odo = {e["frame"]: e for e in s.state.events if "odometry" in e}
     assert set(odo) == set(range(1, 9))
@@ -235,45 +245,7 @@ def test_a_start_with_no_frame_to_bridge_with_hands_over_to_the_tracker(tiny_seq
     """The first frame after the warm-up has no depth, so it cannot be the bridge: odometry does not go on waiting
     for one (a camera whose depth stays out would never be tracked on the map), the tracker takes over on the first
     map from the next frame, and the frames after it are tracked and mapped as usual."""
-    import threading
-    import time
-
-    import slam.engine.mapper as mapper_mod
-    from slam.engine.setup import load_data
-    from slam.engine.system import SLAM
-    from tests.slam.conftest import EditedDataset
-
-    _simulated(monkeypatch, 0.0)
-    gate, mapped = threading.Event(), []
-    real_map = mapper_mod.map_frame
-
-    def mapping(scene, index, *a, **k):
-        mapped.append(index)
-        if index == 0:
-            assert gate.wait(60), "the tracker never reached frame 3: it waited for the warm-up"
-        return real_map(scene, index, *a, **k)
-
-    monkeypatch.setattr(mapper_mod, "map_frame", mapping)
-    cfg = load_config("synthetic", [f"data.path={tiny_seq}", *TINY[1:], "data.max_frames=8", "parallel=true",
-                                    "mapper_process=false", "data.realtime=true", "mapping.every_frame=1"],
-                      profile="quality")
-    s = SLAM(cfg, EditedDataset(load_data(cfg), no_depth=(4,)))
-    real_step = s.step
-
-    def step(k):
-        rec = real_step(k)
-        if k == 3:
-            gate.set()
-            while not s.mapper.idle():
-                time.sleep(0.01)
-        return rec
-
-    s.step = step
-    try:
-        s.run(progress=False)
-    finally:
-        s.close()
-        gate.set()
+    s, mapped = _run_holding_calls(tiny_seq, monkeypatch, 8, (4,), {3: 0})
     odo = {e["frame"]: e["odometry"] for e in s.state.events if "odometry" in e}
     assert odo == {1: True, 2: True, 3: True, 4: False}
     assert {e["frame"] for e in s.state.tracking} == {5, 6, 7} and all(s.state.trusted[5:])
