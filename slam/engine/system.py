@@ -114,8 +114,8 @@ class SLAM:
         self.growth = SceneGrowth(cfg, self._event, radius=(self.bound[0][1] - self.bound[0][0]) / 2 if auto else None)
 
     # ----------------------------------------------------------------------------------------------- helpers
-    def _event(self, k: int, what: str, **extra) -> None:
-        log.warning("frame %d: %s", self.indices[k], what)
+    def _event(self, k: int, what: str, level: int = logging.WARNING, **extra) -> None:
+        log.log(level, "frame %d: %s", self.indices[k], what)
         self.state.events.append({"frame": int(self.indices[k]), "event": what, **extra})
 
     def _apply(self, done) -> None:
@@ -151,6 +151,9 @@ class SLAM:
         if not (odometry and self.mapper.busy(k)):  # never waits for the warm-up
             self._apply(self.mapper.sync(k, idle=self.frames.read_while))  # reads ahead while it waits (prefetch_in)
         warming = odometry and self.mapper.applied < 2
+        if self.odometry_first and not warming:  # once: the frames before were tracked by depth odometry
+            self.odometry_first = False
+            self._event(k, "first map ready: tracked on the map from this frame on", logging.INFO)
         frame = self.frames.get(k)
         pose, tracked, trusted = self._pose(k, frame, warming)
         self.state.est.append(pose.cpu())
@@ -158,6 +161,7 @@ class SLAM:
         mapped = self._submit(k, frame, trusted, warming)
         if warming and not mapped and self.mapper.applied and self.mapper.idle():  # no frame to bridge with (no
             self.odometry_first = False  # depth, or odometry failed): the tracker takes over on the first map
+            self._event(k, "first map ready, no bridge frame: tracked on the map from the next frame", logging.INFO)
         self.state.sizes.append(list(self.size))
         if not self.mapper.parallel:
             self._apply(self.mapper.sync(k + 1))

@@ -230,6 +230,8 @@ def test_the_frames_before_the_map_reaches_the_camera_are_tracked_by_depth_odome
     assert all(odo[j]["odometry"] == (j not in no_depth) for j in odo)
     assert all(s.state.trusted[j] == (j not in no_depth) for j in range(10))
     assert mapped[:2] == [0, 6] and {e["frame"] for e in s.state.tracking} == {9}
+    ready = [e["frame"] for e in s.state.events if e["event"].startswith("first map ready")]
+    assert ready == [9]  # the hand-over is said once, on the first frame tracked on the map
     assert [kf.index for kf in s.keyframes.frames][:2] == [0, 6]
     for j in range(1, 9):  # the tiny room's depth is exact: ICP registers each step to a few millimetres
         if j not in no_depth and j != 6:  # 6's pose is the bridge call's bundle-adjusted one
@@ -248,6 +250,7 @@ def test_a_start_with_no_frame_to_bridge_with_hands_over_to_the_tracker(tiny_seq
     s, mapped = _run_holding_calls(tiny_seq, monkeypatch, 8, (4,), {3: 0})
     odo = {e["frame"]: e["odometry"] for e in s.state.events if "odometry" in e}
     assert odo == {1: True, 2: True, 3: True, 4: False}
+    assert [e["frame"] for e in s.state.events if e["event"].startswith("first map ready")] == [4]
     assert {e["frame"] for e in s.state.tracking} == {5, 6, 7} and all(s.state.trusted[5:])
     assert mapped[0] == 0 and 4 not in mapped and 5 in mapped
     assert s.gt is not None and all(
