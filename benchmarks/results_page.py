@@ -117,13 +117,13 @@ def profiles() -> str:
 #: the real-time replay's runs: (window label or None for the folder's name, setting, file, its command's options)
 REALTIME_RUNS = [
     (None, "free, odometry (default)", "default", ""),
+    (None, "free, odometry, `tracking.icp_wide=0`", "icp_wide_off", "--set tracking.icp_wide=0 "),
     (None, "free, wait", "warmup_wait", "--set mapping.realtime_warmup=wait "),
     (None, "schedule", "schedule", "--set mapping.realtime_sync=schedule "),
-    ("room", "free, odometry (default)", "room_default", "--config synthetic --data bundled "
-                                                         "--set mapping.realtime_warmup=odometry "),
+    ("room", "free, odometry (default)", "room_default", "--config synthetic --data bundled "),
     ("room", "free, wait", "room_warmup_wait", "--config synthetic --data bundled --set mapping.realtime_warmup=wait "),
     ("walk300", "free, odometry (default)", "walk300_default", "--config synthetic/walk --data bundled --set "
-                                                               "mapping.realtime_warmup=odometry data.max_frames=300 "),
+                                                               "data.max_frames=300 "),
     ("walk300", "free, wait", "walk300_warmup_wait", "--config synthetic/walk --data bundled --set "
                                                      "mapping.realtime_warmup=wait data.max_frames=300 "),
 ] + [(label, setting, f"room_{variant}_{name}", f"--config synthetic --data bundled --set "

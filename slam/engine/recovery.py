@@ -1,9 +1,6 @@
-"""Tracking a frame with recovery: the depth-ICP start, re-tracking an implausible result from other starts, and
-relocalising against keyframes after a run of frames the tracker could not trust.
+"""Tracking a frame with recovery: re-tracking an implausible result from other starts, and relocalising against
+keyframes after a run of frames the tracker could not trust (the depth-ICP start: :mod:`slam.engine.icp_start`).
 
-* :func:`icp_start` chains the ICP motion onto the pose of the frame whose depth it registers against (the last
-  trusted frame with depth), never onto the previous frame's pose: after a frame without depth, an unreadable
-  frame or a lost one those are different frames, and the start would carry the gap's motion twice.
 * :func:`recover` checks a tracking result with the :class:`slam.engine.tracking_guard.TrackingGuard` and, when it is
   implausible, tracks again from several starts and keeps the plausible candidate with the lowest loss on one
   common set of pixels.
@@ -26,9 +23,10 @@ from typing import Callable
 
 import torch
 
-from slam.core.odometry import hold_unobserved, icp_relative_pose, pyramid, unobserved_directions
+from slam.core.odometry import icp_relative_pose, pyramid
 from slam.core.pose import matrix_to_pose, pose_distance, pose_to_matrix
 from slam.core.camera import sample_pixels
+from slam.engine.icp_start import turned
 from slam.engine.tracker import TrackResult, evaluate_pose, track_frame
 from slam.engine.tracking_guard import TrackingGuard, motion
 
@@ -53,35 +51,6 @@ class TrackInput:
     cfg: object
     gen: torch.Generator
     guard: TrackingGuard
-
-
-def icp_start(ref_pose: torch.Tensor, ref_depth: torch.Tensor, guess: torch.Tensor, depth: torch.Tensor,
-              intr, hold_pose: torch.Tensor | None = None, hold: float = 0.0, **icp) -> tuple[torch.Tensor, bool]:
-    """The start pose of a frame from depth ICP against a reference frame.
-
-    Args:
-        ref_pose: ``[7]`` camera-to-world pose of the reference frame (the frame ``ref_depth`` was taken from).
-        ref_depth, depth: ``[H, W]`` metres (0 invalid) of the reference and the current frame.
-        guess: ``[7]`` the current frame's predicted pose; ICP starts at the motion it implies.
-        intr: working-image intrinsics.
-        hold_pose, hold: ``tracking.icp_hold`` (ours): in the directions the reference image's geometry does not
-            observe (a single plane in view; :func:`slam.core.odometry.unobserved_directions` with ratio ``hold``),
-            the start is ``hold_pose``'s ``[7]`` (the previous pose), not the guess's (0: off).
-        icp: more :func:`slam.core.odometry.icp_relative_pose` arguments.
-
-    Returns:
-        ``(pose [7], converged)``: ``ref_pose`` times the registered motion, or ``guess`` when ICP does not converge.
-    """
-    ref = pose_to_matrix(ref_pose).double()
-    rel0 = torch.linalg.solve(ref, pose_to_matrix(guess).double())
-    res = icp_relative_pose(ref_depth, depth, intr, init=rel0, **icp)
-    if not res.ok:
-        return guess, False
-    rel = res.relative.double()
-    if hold > 0 and hold_pose is not None:
-        rel = hold_unobserved(rel, torch.linalg.solve(ref, pose_to_matrix(hold_pose).double()),
-                              unobserved_directions(ref_depth, intr, hold))
-    return matrix_to_pose((ref @ rel).float()), True
 
 
 def _common_pixels(inp: TrackInput) -> tuple[torch.Tensor, torch.Tensor]:
@@ -173,23 +142,6 @@ def nearest_keyframes(keyframes: list, anchor: torch.Tensor, n: int) -> list:
     keyframe store's redundancy measure), nearest first."""
     at = pose_to_matrix(anchor.double())
     return sorted(keyframes, key=lambda kf: pose_distance(at, pose_to_matrix(kf.pose.double())))[:n]
-
-
-def turned(pose: torch.Tensor, degrees: tuple[float, ...] = (-32.0, -24.0, -16.0, -8.0, 8.0, 16.0, 24.0, 32.0),
-           axes: tuple[int, ...] = (0, 1, 2)) -> list[torch.Tensor]:
-    """``pose`` ``[7]`` turned about each of its camera's ``axes`` (0: x, pitch; 1: y, yaw; 2: z, roll) by each of
-    ``degrees``: ICP starts for a camera that rotated while nothing was seen (projective association captures only
-    a few degrees; a hand-held camera turns 30 degrees in half a second)."""
-    out = []
-    T = pose_to_matrix(pose.double())
-    for axis in axes:
-        i, j = [(1, 2), (2, 0), (0, 1)][axis]
-        for deg in degrees:
-            a = torch.deg2rad(torch.tensor(deg, dtype=torch.float64))
-            R = torch.eye(4, dtype=torch.float64)
-            R[i, i], R[i, j], R[j, i], R[j, j] = torch.cos(a), -torch.sin(a), torch.sin(a), torch.cos(a)
-            out.append(matrix_to_pose((T @ R).float()))
-    return out
 
 
 def _icp_against(kf, inp: TrackInput, guesses: list, keep: int = 3) -> torch.Tensor | None:

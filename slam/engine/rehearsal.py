@@ -20,7 +20,7 @@ import torch
 
 from slam.engine.keyframes import KeyframeStore
 from slam.engine.mapper import keep_keyframe, map_frame
-from slam.engine.recovery import icp_start
+from slam.engine.icp_start import icp_start
 from slam.engine.tracker import track_frame
 
 __all__ = ["preload", "rehearse_mapping", "rehearse_tracking"]

@@ -2,7 +2,7 @@
 
 :func:`predict` gives the motion model's pose; :func:`track_without_depth` tracks a frame without valid depth on
 its colour; :func:`track_by_odometry` a frame of a real-time run that arrives before the first map exists;
-:func:`track_with_recovery` tracks from the ICP start (:func:`slam.engine.recovery.icp_start`), checks the result
+:func:`track_with_recovery` tracks from the ICP start (:func:`slam.engine.icp_start.icp_start`), checks the result
 with the guard, re-tracks an implausible one (:func:`slam.engine.recovery.recover`) and, after
 ``tracking.relocalize_after`` untrusted frames in a row, relocalises against the keyframes
 (:func:`slam.engine.recovery.relocalise`). It reads and updates only the
@@ -20,7 +20,8 @@ from typing import Callable
 import torch
 
 from slam.core.pose import constant_velocity
-from slam.engine.recovery import TrackInput, icp_start, recover, relocalise
+from slam.engine.icp_start import icp_start
+from slam.engine.recovery import TrackInput, recover, relocalise
 from slam.engine.state import RunState
 from slam.engine.tracker import TrackResult, track_frame, track_on_color
 from slam.engine.tracking_guard import TrackingGuard
@@ -63,7 +64,8 @@ def track_with_recovery(k: int, inp: TrackInput, st: RunState, pred: torch.Tenso
     if cfg.tracking.init == "icp" and st.prev_depth is not None:
         # ICP registers against the last trusted frame with depth: chain its motion onto that frame's pose
         init, _ = icp_start(st.est[st.prev_depth_k], st.prev_depth, pred, inp.depth, inp.intr, hold_pose=st.est[-1],
-                            hold=cfg.tracking.icp_hold, smooth=cfg.tracking.icp_normals)
+                            hold=cfg.tracking.icp_hold, smooth=cfg.tracking.icp_normals, wide=cfg.tracking.icp_wide,
+                            note=lambda what: run.event(k, what, wide_start=True))
     res = track_frame(inp.scene, inp.color, inp.depth, inp.intr, init, cfg, inp.gen)
     last = st.last_trusted()
     anchor, dt = (st.est[last], run.dt(k, last)) if last >= 0 else (st.est[-1], run.dt(k, max(k - 1, 0)))
@@ -111,7 +113,7 @@ def track_by_odometry(k: int, depth: torch.Tensor | None, intr, st: RunState, pr
         return pred, False
     tc, ref = cfg.tracking, int(st.prev_depth_k)
     pose, ok = icp_start(st.est[ref], st.prev_depth, pred, depth, intr, hold_pose=st.est[-1], hold=tc.icp_hold,
-                         smooth=tc.icp_normals)
+                         smooth=tc.icp_normals, wide=tc.icp_wide, note=lambda what: run.event(k, what, wide_start=True))
     why = [] if ok else ["depth ICP did not converge"]
     last = st.last_trusted()
     if ok and last >= 0:

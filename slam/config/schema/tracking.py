@@ -34,6 +34,11 @@ class TrackingConfig:
         "(ours) depth ICP's normals (the `init: icp` start, relocalisation) averaged over this many pixels square, "
         "an odd number (1: central differences alone, as before). Raw normals of far, noisy depth held the start "
         "back along the optical axis in a corridor (docs/robustness.md, \"Depth ICP's normals\")"))
+    icp_wide: float = num(0.6, lo=0, hi=1.0, doc=(
+        "(ours) with `init: icp`: a registration from the constant-velocity guess that matches fewer than this share "
+        "of the frame's points is tried again from the guess turned 8 degrees about each camera axis and from the "
+        "previous pose, and the one matching the most points kept (docs/robustness.md, \"How far apart the frames "
+        "can be\"); 0: off"))
     outlier_factor: float = num(10.0, **POSITIVE, doc=(
         "a ray is an outlier when its depth error is over this times the median error (ESLAM's rule)"))
     patience: int = num(0, **NONNEG, doc=(
