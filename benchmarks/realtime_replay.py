@@ -36,7 +36,9 @@ def run_one(preset: str, data: Path | None, seed: int, out: Path, extra: list[st
     return {"seed": seed, **m["realtime"], "ate_rmse_cm": None if ate is None else round(100 * ate, 4),
             "fpt_s": round(m["fpt_s"], 4), "preload_s": round(m["preload_s"], 3), "frames_lost": m["frames_lost"],
             "mapping_calls": m["mapping_calls"], "mapping_declined": m.get("mapping_declined"),
-            "mapping_wait_s": round(m["mapping_wait_s"], 3)}
+            "mapping_wait_s": round(m["mapping_wait_s"], 3), "frames_odometry": m.get("frames_odometry"),
+            # ICP starts taken from wider starts (tracking.icp_wide): frames the tracker took too far apart
+            "wide_starts": sum(1 for e in m["events"] if e.get("wide_start"))}
 
 
 def summary(runs: list[dict]) -> dict:
