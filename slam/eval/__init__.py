@@ -9,7 +9,7 @@ from slam.eval.ate import ATEResult, ate, ate_from_files, umeyama
 from slam.eval.culling import cull_mesh, visible_vertices
 from slam.eval.mesh_metrics import align_mesh, depth_l1, icp_align, load_mesh, reconstruction_metrics, render_depth
 from slam.eval.plots import plot_trajectory
-from slam.eval.trajectory import associate, read_tum_trajectory, write_tum_trajectory
+from slam.eval.trajectory import associate, frame_steps, read_tum_trajectory, write_tum_trajectory
 
 __all__ = [
     "ATEResult",
@@ -17,6 +17,7 @@ __all__ = [
     "ate_from_files",
     "umeyama",
     "associate",
+    "frame_steps",
     "read_tum_trajectory",
     "write_tum_trajectory",
     "reconstruction_metrics",

@@ -23,6 +23,7 @@ __all__ = [
     "poses_from_tum",
     "poses_to_tum",
     "check_rigid",
+    "frame_steps",
 ]
 
 
@@ -104,3 +105,27 @@ def _to_numpy(x):
     if hasattr(x, "detach"):
         return x.detach().cpu().numpy()
     return x
+
+
+def frame_steps(poses) -> dict | None:
+    """How far apart consecutive poses are: the turn (degrees) and the move (centimetres) from each pose to the next
+    of ``poses`` ``[N, 4, 4]`` camera-to-world (metres), as ``{"turn_deg": {...}, "move_cm": {...}}`` with the
+    ``median``, ``p95`` and ``max`` of each; None with fewer than two finite poses. A run's tracker starts each frame from
+    depth ICP against the one before, and how far apart they are bounds how well it does
+    (docs/robustness.md, "How far apart the frames can be")."""
+    T = np.asarray(_to_numpy(poses), dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ValueError(f"frame_steps: poses must be [N, 4, 4], got {tuple(T.shape)}")
+    if len(T) < 2:
+        return None
+    T = T[np.isfinite(T).all(axis=(1, 2))]
+    if len(T) < 2:
+        return None
+    rel = np.linalg.solve(T[:-1], T[1:])  # each pose in the frame of the one before
+    cos = np.clip((np.trace(rel[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    out = {}
+    turn, move = np.degrees(np.arccos(cos)), 100.0 * np.linalg.norm(rel[:, :3, 3], axis=1)
+    for name, vals in (("turn_deg", turn), ("move_cm", move)):
+        out[name] = {"median": round(float(np.median(vals)), 3), "p95": round(float(np.percentile(vals, 95)), 3),
+                     "max": round(float(vals.max()), 3)}
+    return out

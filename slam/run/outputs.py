@@ -70,6 +70,8 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
     }
     if run.state.loop_summary is not None:
         metrics["loops"] = run.state.loop_summary
+    # the turn and move between the frames the run took (a real-time run's: the ones it did not drop)
+    metrics["frame_steps"] = seval.frame_steps(run.poses()) if run.state.est else None
     if cfg.data.realtime:
         from slam.engine.realtime import latency_summary
 

@@ -258,6 +258,11 @@ def test_end_to_end_run(tiny_seq, tmp_path):
     assert [int(r["k"]) for r in rows] == list(range(16)) and all(r["trusted"] == "1" for r in rows)
     assert rows[0]["tracking_iters"] == "" and all(int(r["tracking_iters"]) >= 1 for r in rows[1:])
     assert m["tracking_iters_mean"] == sum(int(r["tracking_iters"]) for r in rows[1:]) / 15
+    from slam.eval import frame_steps, read_tum_trajectory
+
+    truth = frame_steps(read_tum_trajectory(out / "trajectory_gt.txt")[1])  # the steps the camera took
+    for key in ("turn_deg", "move_cm"):
+        assert m["frame_steps"][key]["median"] == pytest.approx(truth[key]["median"], abs=0.3)
     # re-extract from the checkpoint
     assert main(["mesh", str(out / "checkpoint.pt"), "--resolution", "0.08", "--out", str(tmp_path / "m.ply")]) == 0
     assert (tmp_path / "m.ply").stat().st_size > 0
