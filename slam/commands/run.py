@@ -12,6 +12,10 @@ from pathlib import Path
 
 from slam.errors import SlamInputError
 
+# the turn between taken frames (95th percentile) past which a run is told its frames were far apart: the fast
+# fr1_rpy window every 4th frame (90th percentile 12.6 degrees) lost the tracker before tracking.icp_wide
+FAR_APART_DEG = 10.0
+
 
 def _profiles_help() -> str:
     from slam.config.profiles import PROFILES, describe
@@ -133,19 +137,28 @@ def main(args) -> int:
     except RunInterrupted as exc:
         print(f"lrslam run: {exc}", file=sys.stderr)
         return exc.exit_code
-    total = time.perf_counter() - t0
-    summary = {k: metrics.get(k) for k in ("num_frames", "ate_rmse_m", "ate_mean_m", "fpt_s")}
-    summary["parameters_total"] = metrics["parameters"]["total"]
-    if "reconstruction" in metrics:
-        summary["reconstruction"] = metrics["reconstruction"]
-    summary["wall_s"] = round(total, 1)
-    print(json.dumps(summary, indent=None, default=str))
-    print(f"outputs in {out}")
+    _print_summary(metrics, out, time.perf_counter() - t0)
     for obs in observers:
         share = 100 * obs.log_s / metrics["loop_s"] if metrics.get("loop_s") else float("nan")
         where = f"recording in {args.rerun} (view it with: rerun {args.rerun})" if args.rerun else "streamed"
         print(f"Rerun {where}; logging took {obs.log_s:.2f} s in this process ({share:.1f} % of the loop)")
     return 0
+
+
+def _print_summary(metrics: dict, out: Path, wall_s: float) -> None:
+    """The run's one-line JSON summary and where its outputs are; a line on stderr when its frames were far apart."""
+    summary = {k: metrics.get(k) for k in ("num_frames", "ate_rmse_m", "ate_mean_m", "fpt_s")}
+    summary["parameters_total"] = metrics["parameters"]["total"]
+    if "reconstruction" in metrics:
+        summary["reconstruction"] = metrics["reconstruction"]
+    summary["wall_s"] = round(wall_s, 1)
+    print(json.dumps(summary, indent=None, default=str))
+    print(f"outputs in {out}")
+    turn = (metrics.get("frame_steps") or {}).get("turn_deg")
+    if turn and turn["p95"] > FAR_APART_DEG:  # a low frame rate, or a real-time run on a CPU too slow for it
+        print(f"lrslam run: the frames taken were far apart (turn between them: median {turn['median']:.1f}, 95th "
+              f"percentile {turn['p95']:.1f} degrees); beyond about {FAR_APART_DEG:g} degrees the trajectory's error "
+              "grows (docs/robustness.md, \"How far apart the frames can be\")", file=sys.stderr)
 
 
 def data_preset(path: str) -> str:

@@ -61,12 +61,27 @@ def test_data_alone_detects_the_preset_and_runs_the_devices_default_profile(tiny
     assert main(["run", "--data", str(tiny_seq), "--no-mesh", "--out", str(out), *TINY, "parallel=false"]) == 0
     err = capsys.readouterr().err
     assert f"lrslam run: {tiny_seq}: replica data, profile realtime (choose with --config, --profile)" in err
+    assert "far apart" not in err  # a degree or so between the tiny room's frames
     cfg = yaml.safe_load((out / "config.yaml").read_text())
     assert (cfg["name"], cfg["profile"], cfg["data"]["kind"], cfg["scene"]["bound"]) == ("replica", "realtime",
                                                                                        "replica", "auto")
     assert cfg["tracking"]["optimizer"] == "gauss_newton" and cfg["scene"]["grow_reach"] == "box"
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["num_frames"] == 6 and metrics["ate_rmse_m"] < 0.05
+
+
+def test_a_run_whose_frames_were_far_apart_says_so(tiny_seq, tmp_path, capsys):
+    """Every 12th frame of the tiny room (frames 0 and 12, 11.4 degrees apart): the run ends saying how far apart its
+    frames were and where the page is that tells what that costs; metrics.json holds the steps (tracked right)."""
+    from slam.cli import main
+
+    out = tmp_path / "run"
+    assert main(["run", "--data", str(tiny_seq), "--no-mesh", "--quiet", "--out", str(out), "parallel=false",
+                 "data.stride=12"]) == 0  # the profile's own budgets: two frames
+    steps = json.loads((out / "metrics.json").read_text())["frame_steps"]["turn_deg"]
+    assert 10.0 < steps["p95"] < 13.0, steps
+    err = capsys.readouterr().err
+    assert "the frames taken were far apart" in err and "How far apart the frames can be" in err
 
 
 def test_the_preset_of_a_data_folder_is_its_detected_kind(tiny_seq, tmp_path, shared_data):
