@@ -51,11 +51,12 @@ def icp_start(ref_pose: torch.Tensor, ref_depth: torch.Tensor, guess: torch.Tens
     """
     ref = pose_to_matrix(ref_pose).double()
     rel0 = torch.linalg.solve(ref, pose_to_matrix(guess).double())
+    held = None if hold_pose is None else torch.linalg.solve(ref, pose_to_matrix(hold_pose).double())
     res = icp_relative_pose(ref_depth, depth, intr, init=rel0, **icp)
     if wide > 0 and res.inliers < wide:
         starts = [torch.linalg.solve(ref, pose_to_matrix(p).double()) for p in turned(guess, WIDE_DEGREES)]
-        if hold_pose is not None:
-            starts.append(torch.linalg.solve(ref, pose_to_matrix(hold_pose).double()))
+        if held is not None:
+            starts.append(held)
         wider = wider_registration(ref_depth, depth, intr, res, starts, **icp)
         if wider is not res and note is not None:
             note(f"depth ICP from the prediction matched {100 * res.inliers:.0f} % of the points, from a wider start "
@@ -64,9 +65,8 @@ def icp_start(ref_pose: torch.Tensor, ref_depth: torch.Tensor, guess: torch.Tens
     if not res.ok:
         return guess, False
     rel = res.relative.double()
-    if hold > 0 and hold_pose is not None:
-        rel = hold_unobserved(rel, torch.linalg.solve(ref, pose_to_matrix(hold_pose).double()),
-                              unobserved_directions(ref_depth, intr, hold))
+    if hold > 0 and held is not None:
+        rel = hold_unobserved(rel, held, unobserved_directions(ref_depth, intr, hold))
     return matrix_to_pose((ref @ rel).float()), True
 
 
@@ -78,18 +78,26 @@ def wider_registration(ref_depth: torch.Tensor, depth: torch.Tensor, intr, first
     alone (cheap); the ``keep`` matching the most are registered in full (``icp``: the same arguments as
     ``first``'s), and one replaces ``first`` only where it converged and matches :data:`WIDE_MARGIN` more of the
     points (a wrong registration matches fewer: the surfaces it pairs do not meet)."""
-    coarse = pyramid(*depth.shape)[0]
-    screened = []
-    for i, rel0 in enumerate(starts):
-        r = icp_relative_pose(ref_depth, depth, intr, init=rel0, levels=(coarse,), iters=(6,), min_inliers=0.0,
-                              max_dist=(0.10,), smooth=icp.get("smooth", 3))
-        screened.append((r.inliers if torch.isfinite(r.relative).all() else -1.0, i, r.relative))
     best = first
-    for _, _, rel in sorted(screened, key=lambda c: (-c[0], c[1]))[:keep]:
-        r = icp_relative_pose(ref_depth, depth, intr, init=rel.double(), **icp)
+    for rel in screen_starts(ref_depth, depth, intr, starts, 0.10, icp.get("smooth", 3), keep):
+        r = icp_relative_pose(ref_depth, depth, intr, init=rel, **icp)
         if r.ok and r.inliers > (best.inliers if best.ok else 0.0) + WIDE_MARGIN:
             best = r
     return best
+
+
+def screen_starts(ref_depth: torch.Tensor, depth: torch.Tensor, intr, starts: list, max_dist: float, smooth: int,
+                  keep: int) -> list[torch.Tensor]:
+    """The ``keep`` of ``starts`` (``[4, 4]`` relative poses in the reference camera's frame) whose registration
+    matches the most points after a few steps at the coarse pyramid level alone (cheap; correspondences up to
+    ``max_dist`` metres), as those screened ``[4, 4]`` float64 poses, the best first (ties: the earlier start)."""
+    coarse = pyramid(*depth.shape)[0]
+    screened = []
+    for i, rel0 in enumerate(starts):
+        r = icp_relative_pose(ref_depth, depth, intr, init=rel0, levels=(coarse,), iters=(6,), max_dist=(max_dist,),
+                              min_inliers=0.0, smooth=smooth)
+        screened.append((r.inliers if torch.isfinite(r.relative).all() else -1.0, i, r.relative))
+    return [rel.double() for _, _, rel in sorted(screened, key=lambda c: (-c[0], c[1]))[:keep]]
 
 
 def turned(pose: torch.Tensor, degrees: tuple[float, ...] = (-32.0, -24.0, -16.0, -8.0, 8.0, 16.0, 24.0, 32.0),

@@ -23,10 +23,10 @@ from typing import Callable
 
 import torch
 
-from slam.core.odometry import icp_relative_pose, pyramid
+from slam.core.odometry import icp_relative_pose
 from slam.core.pose import matrix_to_pose, pose_distance, pose_to_matrix
 from slam.core.camera import sample_pixels
-from slam.engine.icp_start import turned
+from slam.engine.icp_start import screen_starts, turned
 from slam.engine.tracker import TrackResult, evaluate_pose, track_frame
 from slam.engine.tracking_guard import TrackingGuard, motion
 
@@ -150,16 +150,10 @@ def _icp_against(kf, inp: TrackInput, guesses: list, keep: int = 3) -> torch.Ten
     alone (cheap); the ``keep`` with the most correspondences are then registered in full."""
     kf_depth = kf.metres().to(inp.depth.device)
     ref = pose_to_matrix(kf.pose).double()
-    coarse = pyramid(*inp.depth.shape)[0]
-    screened = []
-    for guess in guesses:
-        rel0 = torch.linalg.solve(ref, pose_to_matrix(guess).double())
-        res = icp_relative_pose(kf_depth, inp.depth, inp.intr, init=rel0, levels=(coarse,), iters=(6,),
-                                max_dist=(0.30,), min_inliers=0.0, smooth=inp.cfg.tracking.icp_normals)
-        screened.append((res.inliers if torch.isfinite(res.relative).all() else -1.0, len(screened), res.relative))
+    starts = [torch.linalg.solve(ref, pose_to_matrix(guess).double()) for guess in guesses]
     best = None
-    for _, _, rel in sorted(screened, key=lambda c: (-c[0], c[1]))[:keep]:
-        res = icp_relative_pose(kf_depth, inp.depth, inp.intr, init=rel.double(), smooth=inp.cfg.tracking.icp_normals,
+    for rel in screen_starts(kf_depth, inp.depth, inp.intr, starts, 0.30, inp.cfg.tracking.icp_normals, keep):
+        res = icp_relative_pose(kf_depth, inp.depth, inp.intr, init=rel, smooth=inp.cfg.tracking.icp_normals,
                                 **RELOC_ICP)
         if res.ok and (best is None or res.rmse_m < best[0]):
             best = (res.rmse_m, matrix_to_pose((ref @ res.relative.double()).float()))

@@ -14,6 +14,7 @@ import numpy as np
 
 from slam.errors import SlamInputError
 from slam.core.geometry import check_rigid, poses_from_tum, poses_to_tum
+from slam.core.pose import pose_gap
 from slam.data.tum_format import read_tum_poses
 
 __all__ = [
@@ -116,16 +117,12 @@ def frame_steps(poses) -> dict | None:
     T = np.asarray(_to_numpy(poses), dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise ValueError(f"frame_steps: poses must be [N, 4, 4], got {tuple(T.shape)}")
-    if len(T) < 2:
-        return None
     T = T[np.isfinite(T).all(axis=(1, 2))]
     if len(T) < 2:
         return None
-    rel = np.linalg.solve(T[:-1], T[1:])  # each pose in the frame of the one before
-    cos = np.clip((np.trace(rel[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    gaps = np.array([pose_gap(a, b) for a, b in zip(T[:-1], T[1:])])  # (metres, degrees) from each pose to the next
     out = {}
-    turn, move = np.degrees(np.arccos(cos)), 100.0 * np.linalg.norm(rel[:, :3, 3], axis=1)
-    for name, vals in (("turn_deg", turn), ("move_cm", move)):
+    for name, vals in (("turn_deg", gaps[:, 1]), ("move_cm", 100.0 * gaps[:, 0])):
         out[name] = {"median": round(float(np.median(vals)), 3), "p95": round(float(np.percentile(vals, 95)), 3),
                      "max": round(float(vals.max()), 3)}
     return out
