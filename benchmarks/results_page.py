@@ -38,11 +38,6 @@ def _source(rel: str, command: str) -> str:
     return f"Source: `benchmarks/results/{rel}`. Reproduce: `{command}`."
 
 
-def _config_note(d: dict) -> list[str]:
-    """The JSON's ``config_note`` (a default that changed since the run measured it) as a paragraph, if any."""
-    return [d["config_note"], ""] if d.get("config_note") else []
-
-
 def parameters() -> str:
     """Parameter counts of the paper's Table 1 scenes, computed from the presets' published boxes (no run)."""
     from slam.config import load_config
@@ -202,7 +197,6 @@ def walk_loops() -> str:
         "tracker's ATE (odometry) and the pose graph's (ATE RMSE). The loops' cost in frame time is measured "
         "against runs without them in the dev-sequence table below.", "",
         m.table(d["summary"], d["series"], d["stamp"], d["frames"], seeds), "", f"Per seed: {per_seed}.", "",
-        *_config_note(d),
         _source("walk_loops/walk_study.json", "python benchmarks/walk_study.py --frames 2100 --seeds 5 --configs "
                 "'lrslam, loops' --mesh-resolution 0.04 --out benchmarks/results/walk_loops")])
 
@@ -218,7 +212,7 @@ def loops_dev() -> str:
         "accepted and the candidates verified a seed, and the accepted loop that disagreed most with the ground "
         "truth over all seeds. `gentle` and `fast` are the fr1_rpy windows (pairs 125-224 and 0-124), `dev_range` "
         "pairs 0-224, `room` the bundled synthetic room, `walk300` the synthetic walk's first 300 frames.", "",
-        m.table(d), "", *_config_note(d),
+        m.table(d), "",
         _source("loops_dev/profile_targets.json",
                 "python benchmarks/profile_targets.py --loops --seeds 5 --out benchmarks/results/loops_dev")])
 

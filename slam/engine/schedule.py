@@ -4,8 +4,7 @@
 depth) when the map is young (the first ``need_young`` frames), when ``need_max_gap`` frames have passed since the
 last mapped one, or when the map explains the frame worse than it explained the recent ones: its tracking loss is
 above ``need_loss_factor`` times the median of the last :data:`HISTORY` tracked frames' (new space in view, or a
-map that has fallen behind the camera; judged once :data:`MIN_HISTORY` tracked losses precede the frame, which
-the ``realtime`` profile's ``need_young: 4`` waits for and no longer). The first frame with depth and the last frame are always mapped. A call
+map that has fallen behind the camera). The first frame with depth and the last frame are always mapped. A call
 made only because of the gap (a routine refresh) takes ``need_gap_iters`` iterations where that is set. Every
 input is fixed by the frame numbers and the schedule, never by timing, so both loop modes stay deterministic.
 
@@ -22,7 +21,6 @@ import statistics
 from slam.engine.state import RunState
 
 HISTORY = 10
-MIN_HISTORY = 3  # the loss rule judges a frame once this many tracked losses precede it
 
 
 def mapping_reason(k: int, st: RunState, mapping, n_frames: int) -> str | None:
@@ -39,7 +37,7 @@ def mapping_reason(k: int, st: RunState, mapping, n_frames: int) -> str | None:
     if k < mapping.need_young:
         return "young"
     losses = [t["loss"] for t in st.tracking[-HISTORY - 1:-1] if t["trusted"]]
-    if len(losses) >= MIN_HISTORY and st.tracking[-1]["loss"] > mapping.need_loss_factor * statistics.median(losses):
+    if len(losses) >= 3 and st.tracking[-1]["loss"] > mapping.need_loss_factor * statistics.median(losses):
         return "loss"
     return "gap" if k - st.last_mapped >= mapping.need_max_gap else None
 
