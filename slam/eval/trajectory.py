@@ -111,16 +111,18 @@ def _to_numpy(x):
 def frame_steps(poses) -> dict | None:
     """How far apart consecutive poses are: the turn (degrees) and the move (centimetres) from each pose to the next
     of ``poses`` ``[N, 4, 4]`` camera-to-world (metres), as ``{"turn_deg": {...}, "move_cm": {...}}`` with the
-    ``median``, ``p95`` and ``max`` of each; None with fewer than two finite poses. A run's tracker starts each frame from
-    depth ICP against the one before, and how far apart they are bounds how well it does
+    ``median``, ``p95`` and ``max`` of each; None without two consecutive finite poses. A step needs both of its poses
+    finite: the two poses either side of a non-finite one are two steps apart, not one. A run's tracker starts each
+    frame from depth ICP against the one before, and how far apart they are bounds how well it does
     (docs/robustness.md, "How far apart the frames can be")."""
     T = np.asarray(_to_numpy(poses), dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise ValueError(f"frame_steps: poses must be [N, 4, 4], got {tuple(T.shape)}")
-    T = T[np.isfinite(T).all(axis=(1, 2))]
-    if len(T) < 2:
+    finite = np.isfinite(T).all(axis=(1, 2))
+    pairs = np.flatnonzero(finite[:-1] & finite[1:])
+    if len(pairs) == 0:
         return None
-    gaps = np.array([pose_gap(a, b) for a, b in zip(T[:-1], T[1:])])  # (metres, degrees) from each pose to the next
+    gaps = np.array([pose_gap(T[i], T[i + 1]) for i in pairs])  # (metres, degrees) from each pose to the next
     out = {}
     for name, vals in (("turn_deg", gaps[:, 1]), ("move_cm", 100.0 * gaps[:, 0])):
         out[name] = {"median": round(float(np.median(vals)), 3), "p95": round(float(np.percentile(vals, 95)), 3),

@@ -33,5 +33,10 @@ def test_too_few_poses_a_non_finite_pose_and_a_wrong_shape():
     assert frame_steps(np.eye(4)[None]) is None
     poses = np.stack([np.eye(4), _step(4.0, 1.0), np.full((4, 4), np.nan)])
     assert frame_steps(poses)["turn_deg"]["max"] == pytest.approx(4.0)  # the NaN pose is left out
+    # the poses either side of a non-finite one are not one step apart: the 20 degrees across it are no step
+    across = np.stack([np.eye(4), _step(4.0, 1.0), np.full((4, 4), np.nan), _step(24.0, 1.0), _step(30.0, 1.0)])
+    s = frame_steps(across)
+    assert s["turn_deg"]["max"] == pytest.approx(6.0) and s["turn_deg"]["median"] == pytest.approx(5.0)
+    assert frame_steps(np.stack([np.eye(4), np.full((4, 4), np.nan), np.eye(4)])) is None
     with pytest.raises(ValueError, match=r"\[N, 4, 4\]"):
         frame_steps(np.zeros((3, 3, 4)))
