@@ -79,23 +79,30 @@ def wider_registration(ref_depth: torch.Tensor, depth: torch.Tensor, intr, first
     ``first``'s), and one replaces ``first`` only where it converged and matches :data:`WIDE_MARGIN` more of the
     points (a wrong registration matches fewer: the surfaces it pairs do not meet)."""
     best = first
-    for rel in screen_starts(ref_depth, depth, intr, starts, 0.10, icp.get("smooth", 3), keep):
+    for rel in screen_starts(ref_depth, depth, intr, starts, 0.10, keep, **_normals_of(icp)):
         r = icp_relative_pose(ref_depth, depth, intr, init=rel, **icp)
         if r.ok and r.inliers > (best.inliers if best.ok else 0.0) + WIDE_MARGIN:
             best = r
     return best
 
 
-def screen_starts(ref_depth: torch.Tensor, depth: torch.Tensor, intr, starts: list, max_dist: float, smooth: int,
-                  keep: int) -> list[torch.Tensor]:
+def _normals_of(icp: dict) -> dict:
+    # the screen averages normals as the full registration does; where the caller left ``smooth`` to
+    # icp_relative_pose's default, so does the screen
+    return {"smooth": icp["smooth"]} if "smooth" in icp else {}
+
+
+def screen_starts(ref_depth: torch.Tensor, depth: torch.Tensor, intr, starts: list, max_dist: float, keep: int,
+                  **normals) -> list[torch.Tensor]:
     """The ``keep`` of ``starts`` (``[4, 4]`` relative poses in the reference camera's frame) whose registration
     matches the most points after a few steps at the coarse pyramid level alone (cheap; correspondences up to
-    ``max_dist`` metres), as those screened ``[4, 4]`` float64 poses, the best first (ties: the earlier start)."""
+    ``max_dist`` metres), as those screened ``[4, 4]`` float64 poses, the best first (ties: the earlier start).
+    ``normals``: ``smooth`` for :func:`slam.core.odometry.icp_relative_pose` (its default when left out)."""
     coarse = pyramid(*depth.shape)[0]
     screened = []
     for i, rel0 in enumerate(starts):
         r = icp_relative_pose(ref_depth, depth, intr, init=rel0, levels=(coarse,), iters=(6,), max_dist=(max_dist,),
-                              min_inliers=0.0, smooth=smooth)
+                              min_inliers=0.0, **normals)
         screened.append((r.inliers if torch.isfinite(r.relative).all() else -1.0, i, r.relative))
     return [rel.double() for _, _, rel in sorted(screened, key=lambda c: (-c[0], c[1]))[:keep]]
 

@@ -152,7 +152,8 @@ def _icp_against(kf, inp: TrackInput, guesses: list, keep: int = 3) -> torch.Ten
     ref = pose_to_matrix(kf.pose).double()
     starts = [torch.linalg.solve(ref, pose_to_matrix(guess).double()) for guess in guesses]
     best = None
-    for rel in screen_starts(kf_depth, inp.depth, inp.intr, starts, 0.30, inp.cfg.tracking.icp_normals, keep):
+    for rel in screen_starts(kf_depth, inp.depth, inp.intr, starts, 0.30, keep,
+                             smooth=inp.cfg.tracking.icp_normals):
         res = icp_relative_pose(kf_depth, inp.depth, inp.intr, init=rel, smooth=inp.cfg.tracking.icp_normals,
                                 **RELOC_ICP)
         if res.ok and (best is None or res.rmse_m < best[0]):
