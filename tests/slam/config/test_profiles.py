@@ -22,8 +22,9 @@ NOW = {"synthetic": ("synthetic", "quality"), "synthetic/walk": ("synthetic/walk
        "replica/room0": ("replica/room0", "paper"), "scannet": ("scannet", "paper"),
        "scannet/scene0000": ("scannet/scene0000", "paper"), **{name: (name, None) for name in ALIASES}}
 #: keys a profile has changed since 20b7b9c on purpose: Adam retries of the Gauss-Newton tracker (the walk's far turn,
-#: measured in a0137aa's message), tracking with the mapping's loss weights (docs/robustness.md)
-CHANGED_SINCE = {"realtime": ("tracking.recovery_optimizer", "tracking.weights")}
+#: measured in a0137aa's message), tracking with the mapping's loss weights, mapping with ESLAM's tracking tail weight
+#: (both docs/robustness.md)
+CHANGED_SINCE = {"realtime": ("tracking.recovery_optimizer", "tracking.weights", "mapping.weights")}
 #: a raw camera of each dataset kind (the sizes and focal lengths of its sensor)
 RAW = {"tum": Intrinsics(517.3, 516.5, 318.6, 255.3, 480, 640), "7scenes": Intrinsics(585.0, 585.0, 320.0, 240.0, 480, 640),
        "scannet": Intrinsics(577.6, 578.7, 318.9, 242.7, 480, 640), "replica": Intrinsics(600.0, 600.0, 599.5, 339.5, 680, 1200),
