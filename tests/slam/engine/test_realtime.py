@@ -271,5 +271,7 @@ def test_a_real_time_run_with_the_mapping_process_maps_or_declines_every_frame(t
     assert m["num_frames"] == 10 and m["realtime"]["frames_dropped"] == 0
     odometry = m["frames_odometry"]
     assert odometry == sum(1 for e in m["events"] if e.get("odometry"))
-    assert m["mapping_calls"] >= 1 and 10 <= m["mapping_calls"] + m["mapping_declined"] + odometry <= 11
+    # a frame the guard did not trust is not mapped either (which map a frame meets depends on the mapper's timing)
+    counts = (m["mapping_calls"], m["mapping_declined"], odometry, m["frames_lost"])
+    assert m["mapping_calls"] >= 1 and 10 <= sum(counts) <= 11, (counts, m["events"])
     assert m["ate_rmse_m"] < 0.05
