@@ -1,13 +1,10 @@
 """Frame-to-frame depth odometry: projective point-to-plane ICP between two depth images.
 
-The neural tracker refines a pose by gradient steps on a rendering loss, from a starting guess. ESLAM's guess is
-constant velocity, which is far off whenever the camera accelerates or turns quickly (the first frames of TUM
-fr1_rpy turn 4 degrees per frame from rest). Two consecutive depth images already pin down their relative motion
-well, independently of the map: this module estimates it (KinectFusion-style ICP: projective data association,
-point-to-plane residuals, Gauss-Newton on a 6-DoF twist, coarse to fine), and :func:`icp_relative_pose` hands
-the tracker a start that is right to a fraction of a degree. It never replaces the tracker's result; a
-registration that does not converge or keeps too few correspondences reports ``ok=False`` and the caller falls
-back to its prediction.
+The neural tracker refines a pose from a starting guess. ESLAM's, constant velocity, is far off whenever the camera
+accelerates or turns quickly (the first frames of TUM fr1_rpy turn 4 degrees per frame from rest). Two consecutive
+depth images pin down their relative motion independently of the map: :func:`icp_relative_pose` estimates it
+(KinectFusion-style: projective association, point-to-plane residuals, Gauss-Newton on a twist, coarse to fine)
+and reports ``ok=False`` when it does not converge or keeps too few matches, so the caller falls back.
 
 Conventions: OpenCV camera (x right, y down, z forward), depth in metres (0 invalid), poses camera-to-world
 ``[4, 4]``. Nothing here is differentiable (torch.no_grad); float64 inside for the 6x6 solves.
@@ -21,6 +18,12 @@ import torch
 
 from slam.core.camera import backproject
 from slam.core.pose import exp_se3, rotation_vector
+
+
+#: a match's points may lie this many times a level's ``max_dist`` apart (``max_dist`` bounds the distance to the
+#: target's plane): far, noisy points lie a pixel's footprint from their match along the surface, and a gate at
+#: ``max_dist`` dropped them, doubling ICP's error on Kinect-like depth (docs/robustness.md, "Depth ICP's gate")
+POINT_GATE = 3.0
 
 
 @dataclass
@@ -102,10 +105,12 @@ def _level_points(depth: torch.Tensor, cam: tuple[float, float, float, float], m
 
 
 def _associate(pts: torch.Tensor, pnrm: torch.Tensor, T: torch.Tensor, prev: tuple, cam: tuple, dmax: float,
-               min_cos: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+               pmax: float, min_cos: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Projective data association by tensor ops (the reference of :func:`slam.core.odometry_kernels.associate`):
     the current frame's points ``pts`` / normals ``pnrm`` ``[P, 3]`` (float64, CPU), moved by ``T``, matched with
-    the previous level's ``prev = (points, normals, valid)`` at the pixel they project to.
+    the previous level's ``prev = (points, normals, valid)`` at the pixel they project to, kept where the
+    point-to-plane distance is below ``dmax``, the points' distance below ``pmax`` and the normals' cosine above
+    ``min_cos`` (see :data:`POINT_GATE`).
 
     Returns ``(idx, tgt, nrm, src)``: indices into ``pts`` of the kept matches, their target points and normals,
     and the moved points (previous camera frame)."""
@@ -123,8 +128,11 @@ def _associate(pts: torch.Tensor, pnrm: torch.Tensor, T: torch.Tensor, prev: tup
     good = okp[vi, ui]
     idx, ui, vi = idx[good], ui[good], vi[good]
     tgt, nrm, src = vp[vi, ui], np_[vi, ui], q[idx]
-    # close, and the current point's normal (rotated) agreeing with the target's: no matches across surfaces
-    close = ((src - tgt).norm(dim=-1) < dmax) & (((pnrm[idx] @ T[:3, :3].T) * nrm).sum(-1) > min_cos)
+    # close to the target's plane and not far from its point, and the current point's normal (rotated) agreeing
+    # with the target's: no matches across surfaces
+    d = src - tgt
+    close = ((d.norm(dim=-1) < pmax) & ((d * nrm).sum(-1).abs() < dmax)
+             & (((pnrm[idx] @ T[:3, :3].T) * nrm).sum(-1) > min_cos))
     return idx[close], tgt[close], nrm[close], src[close]
 
 
@@ -165,16 +173,15 @@ def icp_relative_pose(
         init: ``[4, 4]`` starting relative pose (default identity), e.g. the constant-velocity prediction.
         levels: downsampling factor per pyramid level, coarse first (default :func:`pyramid` of the image size);
             ``iters`` Gauss-Newton steps per level;
-            ``max_dist`` metres, the largest point-to-point distance of a correspondence at each level.
+            ``max_dist`` metres, the largest distance of a correspondence's point to its target's plane at each
+            level (its points at most :data:`POINT_GATE` times that apart).
         min_cos: smallest cosine between corresponding normals.
         min_inliers: share of the current frame's valid points that must find a correspondence (finest level).
         max_jump: relative depth jump between neighbours beyond which no normal is computed (depth edges).
         smooth: normals averaged over this many pixels square (:func:`smooth_normals`; 1: central differences
-            alone). Raw normals of far, noisy depth tilt at random, and such points hold the camera where it was
-            along the directions the scene barely observes (docs/robustness.md, "Depth ICP's normals").
-        kernel: the registration as numba kernels (:mod:`slam.core.odometry_kernels`; the same formulas, the
-            normal equations summed in another order: the pose to the last bits of a double); False: tensor ops,
-            the reference.
+            alone; raw normals of far, noisy depth tilt at random: docs/robustness.md, "Depth ICP's normals").
+        kernel: numba kernels (:mod:`slam.core.odometry_kernels`: the same formulas, the sums in another order, the
+            pose to the last bits of a double); False: tensor ops, the reference.
 
     Returns:
         :class:`ICPResult`.
@@ -194,7 +201,7 @@ def icp_relative_pose(
         from slam.core.odometry_kernels import register  # numba compiles (or loads its cache) on first use only
 
         inl, rmse, failed = register(dp.numpy(), dc.numpy(), T.numpy(), (fx, fy, cx, cy), levels, iters, max_dist,
-                                     min_cos, max_jump, smooth)
+                                     POINT_GATE, min_cos, max_jump, smooth)
     else:
         T, inl, rmse, failed = _register_reference(dp, dc, T, (fx, fy, cx, cy), levels, iters, max_dist, min_cos,
                                                    max_jump, smooth)
@@ -218,7 +225,7 @@ def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_j
         if pts.shape[0] < 50 or int(okp.sum()) < 50:
             return T, 0.0, float("inf"), True
         for _ in range(n_it):
-            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, min_cos)
+            idx, tgt, nrm, src = _associate(pts, pnrm, T, (vp, np_, okp), cam, dmax, POINT_GATE * dmax, min_cos)
             if idx.numel() < 50:
                 return T, idx.numel() / max(pts.shape[0], 1), float("inf"), True
             xi, r = _gauss_newton_step(src, tgt, nrm)
@@ -230,11 +237,10 @@ def _register_reference(dp, dc, T, intr, levels, iters, max_dist, min_cos, max_j
     return T, float(inl), rmse, False
 
 
-# normals averaged over this many pixels square (at the coarsest pyramid level) for the observability check: the
-# raw normals' noise (a few millimetres of depth noise over neighbours a centimetre apart) makes a flat wall look
-# as constrained in its sliding directions as a furnished room (eigenvalue ratios 2e-3 to 1e-2 for both); averaged,
-# a flat wall's three fall to 1e-5 to 2e-4, while the TUM office's weakest stays at 3e-3 or more and a corridor's
-# axis at 1e-3 (docs/robustness.md, "Depth ICP holds what it cannot see")
+# normals averaged over this many pixels square (coarsest level) for the observability check: raw, a flat wall
+# looks as constrained in its sliding directions as a furnished room (eigenvalue ratios 2e-3 to 1e-2); averaged, the
+# wall's fall to 1e-5 to 2e-4, the TUM office's weakest stays above 3e-3
+# (docs/robustness.md, "Depth ICP holds what it cannot see")
 SMOOTH_NORMALS = 5
 
 
@@ -262,10 +268,9 @@ def unobserved_directions(depth: torch.Tensor, intrinsics, below: float) -> torc
     """The directions of camera motion that the geometry of a depth image does not observe: ``[6, m]`` orthonormal
     twists (rotation, translation; left twists in this camera's frame), m = 0 to 6.
 
-    A direction is unobserved when its eigenvalue of the point-to-plane normal matrix (``[p x n, n]`` over the
-    image's points, normals averaged over :data:`SMOOTH_NORMALS` pixels square at the coarsest pyramid level) is
-    below ``below`` times the largest. Facing a single plane that is the slide along it and the turn about its
-    normal (3 directions); a room, a corner or a floor with furniture has none.
+    A direction is unobserved when its eigenvalue of :func:`normal_matrix` is below ``below`` times the largest.
+    Facing a single plane that is the slide along it and the turn about its normal (3 directions); a room, a
+    corner or a floor with furniture has none.
 
     Args:
         depth: ``[H, W]`` metres (0 invalid); intrinsics: its ``slam.data.Intrinsics``.
@@ -283,9 +288,8 @@ def hold_unobserved(relative: torch.Tensor, hold: torch.Tensor, directions: torc
     out along ``directions`` ``[6, m]`` (:func:`unobserved_directions` of the reference image): there the result
     is ``hold``'s, elsewhere ``relative``'s.
 
-    Why: ICP cannot move a pose along a direction depth does not observe, so it keeps whatever its start had
-    there. When the start is a constant-velocity prediction, an error in that direction becomes the next frame's
-    velocity and grows frame after frame (docs/robustness.md, "Depth ICP holds what it cannot see").
+    Why: ICP keeps its start's motion along a direction depth does not observe; from a constant-velocity start an
+    error there becomes the next velocity and grows (docs/robustness.md, "Depth ICP holds what it cannot see").
     """
     if directions.shape[1] == 0:
         return relative

@@ -24,10 +24,11 @@ from numba import njit
 
 
 @njit(nogil=True, cache=True)
-def associate(q, qn, vp, np_, okp, fx, fy, cx, cy, dmax, min_cos, idx, src, tgt, nrm):  # pragma: no cover - compiled
+def associate(q, qn, vp, np_, okp, fx, fy, cx, cy, dmax, pmax, min_cos, idx, src, tgt, nrm):  # pragma: no cover - compiled
     """Projective association of moved points ``q [P, 3]`` (previous camera frame) with their moved normals
     ``qn [P, 3]`` against the previous level's points ``vp``, normals ``np_`` ``[H, W, 3]`` and validity ``okp
-    [H, W]``. Writes the kept matches' point indices into ``idx [P]`` and their moved points, target points and
+    [H, W]``, kept where the point-to-plane distance is below ``dmax``, the points' distance below ``pmax`` and
+    the normals' cosine above ``min_cos``. Writes the kept matches' point indices into ``idx [P]`` and their moved points, target points and
     target normals into ``src``, ``tgt``, ``nrm`` ``[P, 3]``, in point order; returns how many were kept."""
     H, W = okp.shape
     floor = 1e-6
@@ -46,7 +47,9 @@ def associate(q, qn, vp, np_, okp, fx, fy, cx, cy, dmax, min_cos, idx, src, tgt,
         d0 = q[i, 0] - vp[vi, ui, 0]
         d1 = q[i, 1] - vp[vi, ui, 1]
         d2 = q[i, 2] - vp[vi, ui, 2]
-        if not np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) < dmax:
+        if not np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) < pmax:
+            continue
+        if not abs(d0 * np_[vi, ui, 0] + d1 * np_[vi, ui, 1] + d2 * np_[vi, ui, 2]) < dmax:
             continue
         cos = qn[i, 0] * np_[vi, ui, 0] + qn[i, 1] * np_[vi, ui, 1] + qn[i, 2] * np_[vi, ui, 2]
         if not cos > min_cos:
@@ -176,7 +179,7 @@ def _left_multiply_exp(xi, T):  # pragma: no cover - compiled
 
 
 @njit(nogil=True, cache=True)
-def register_level(pts, pnrm, vp, np_, okp, T, fx, fy, cx, cy, dmax, min_cos, n_it, out):  # pragma: no cover
+def register_level(pts, pnrm, vp, np_, okp, T, fx, fy, cx, cy, dmax, pmax, min_cos, n_it, out):  # pragma: no cover
     """Up to ``n_it`` robust Gauss-Newton steps of one pyramid level: the current frame's points ``pts`` and
     normals ``pnrm`` ``[P, 3]`` moved by ``T [4, 4]`` (float64, updated in place) onto the previous frame's
     ``vp``, ``np_``, ``okp`` (:func:`level_points`), as ``odometry.icp_relative_pose``'s inner loop: associate, the
@@ -200,7 +203,7 @@ def register_level(pts, pnrm, vp, np_, okp, T, fx, fy, cx, cy, dmax, min_cos, n_
             for a in range(3):
                 q[i, a] = pts[i, 0] * T[a, 0] + pts[i, 1] * T[a, 1] + pts[i, 2] * T[a, 2] + T[a, 3]
                 qn[i, a] = pnrm[i, 0] * T[a, 0] + pnrm[i, 1] * T[a, 1] + pnrm[i, 2] * T[a, 2]
-        m = associate(q, qn, vp, np_, okp, fx, fy, cx, cy, dmax, min_cos, idx, src, tgt, nrm)
+        m = associate(q, qn, vp, np_, okp, fx, fy, cx, cy, dmax, pmax, min_cos, idx, src, tgt, nrm)
         if m < 50:
             out[0] = m / max(P, 1)
             return True
@@ -238,10 +241,11 @@ def register_level(pts, pnrm, vp, np_, okp, T, fx, fy, cx, cy, dmax, min_cos, n_
     return False
 
 
-def register(depth_prev, depth_cur, T, cam, levels, iters, max_dist, min_cos, max_jump, smooth=1):
+def register(depth_prev, depth_cur, T, cam, levels, iters, max_dist, point_gate, min_cos, max_jump, smooth=1):
     """``odometry.icp_relative_pose``'s loop over the pyramid on numpy float64 arrays: depths ``[H, W]``, ``T``
     ``[4, 4]`` the start (updated in place), ``cam`` the full image's ``(fx, fy, cx, cy)``, ``smooth`` the normals'
-    averaging square (:func:`smooth_normals`; 1: none). Returns ``(inliers, rmse,
+    averaging square (:func:`smooth_normals`; 1: none), ``point_gate`` times a level's ``max_dist`` the largest
+    distance between a match's points. Returns ``(inliers, rmse,
     failed)``: the last step's inlier share and RMS residual, and whether a level had too few points or matches
     (the caller's failure result, ``T`` where it stopped)."""
     fx, fy, cx, cy = cam
@@ -261,6 +265,7 @@ def register(depth_prev, depth_cur, T, cam, levels, iters, max_dist, min_cos, ma
         pts, pnrm = cur[0][cur[2]], cur[1][cur[2]]  # [P, 3] current camera frame, row-major as the reference
         if pts.shape[0] < 50 or int(prev[2].sum()) < 50:
             return 0.0, np.inf, True
-        if register_level(pts, pnrm, prev[0], prev[1], prev[2], T, *lcam, dmax, min_cos, n_it, out):
+        if register_level(pts, pnrm, prev[0], prev[1], prev[2], T, *lcam, dmax, point_gate * dmax, min_cos, n_it,
+                          out):
             return float(out[0]), np.inf, True
     return float(out[0]), float(out[1]), False
