@@ -18,6 +18,11 @@ Usage::
 
 Writes ``walk_study.json`` (every run's values per seed, the summaries, the per-frame series), ``walk_study.png``
 (parameters and bytes against metres walked); docs/results.md is then rewritten by ``python benchmarks/results_page.py``.
+
+``--loop-oracle`` runs nothing: it re-solves the pose graph of each run with loops that OUT/walk_study.json lists,
+with each accepted loop's relative pose taken from the ground truth, and writes ``loop_oracle.json``: the ATE of the
+tracker, of the measured loops' correction (the run's own) and of exact loops'. If exact loops leave the ATE where
+it was, better loop measurement cannot help: the error is one the loops do not observe.
 """
 
 from __future__ import annotations
@@ -136,6 +141,57 @@ def table(summ: list[dict], curves: dict, st: dict, frames: int, seeds: int) -> 
     return "\n".join(lines)
 
 
+def loop_oracle(folder: Path) -> dict:
+    """ATE (cm) of one run's tracker, its measured loops' correction and exact loops' (the ground truth's relative
+    pose in each accepted loop; everything else as the run had it: keyframes, odometry edges, trusted flags)."""
+    import numpy as np
+    import torch
+
+    from slam.config.load import load_config
+    from slam.eval.ate import ate
+    from slam.eval.trajectory import read_tum_trajectory
+    from slam.loop.closer import LoopCloser
+
+    cfg = load_config(str(folder / "config.yaml"))
+    closer = LoopCloser(cfg.loops, None, cfg.seed)
+    closer.load_state_dict(torch.load(folder / "checkpoint.pt", weights_only=False, map_location="cpu")["extra"][
+        "run"]["loops"])
+    odo, gt = (np.asarray(read_tum_trajectory(folder / f)[1], np.float64)
+               for f in ("trajectory_odometry.txt", "trajectory_gt.txt"))
+    with open(folder / "frames.csv") as fh:
+        trusted = [row["trusted"] == "1" for row in csv.DictReader(fh)]
+    n = min(len(odo), len(gt), len(trusted))
+    odo, gt, trusted = odo[:n], gt[:n], trusted[:n]
+    measured = closer.close_loops(odo, trusted)[0]
+    errors = []
+    for lp in closer.loops:
+        exact = np.linalg.inv(gt[lp["match"]]) @ gt[lp["query"]]
+        errors.append(round(float(np.linalg.norm((np.linalg.inv(exact) @ lp["rel"])[:3, 3])) * 100, 3))
+        lp["rel"] = exact
+    exact_loops = closer.close_loops(odo, trusted)[0]
+
+    def cm(p):
+        return round(ate(p[:, :3, 3], gt[:, :3, 3]).rmse * 100, 3)
+
+    return {"run": folder.name, "loop_gt_error_cm": errors,
+            "ate_cm": {"tracker": cm(odo), "measured loops": cm(measured), "exact loops": cm(exact_loops)}}
+
+
+def oracle_study(out: Path) -> dict:
+    """:func:`loop_oracle` of every run with loops in ``out``/walk_study.json, with mean ± std; written to
+    ``out``/loop_oracle.json."""
+    from _stamp import stamp
+
+    runs = [r for r in json.loads((out / "walk_study.json").read_text())["runs"] if r.get("loops") is not None]
+    rows = [loop_oracle(out / r["folder"]) for r in runs]
+    summary = {k: [round(statistics.mean(v), 3), round(statistics.stdev(v), 3) if len(v) > 1 else None]
+               for k in ("tracker", "measured loops", "exact loops") for v in [[r["ate_cm"][k] for r in rows]]}
+    result = {"stamp": stamp(), "command": f"python benchmarks/walk_study.py --loop-oracle --out {out}",
+              "runs": rows, "mean_std_cm": summary}
+    (out / "loop_oracle.json").write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=1050, help="frames of the walk (1050: the way out, 20 m)")
@@ -149,9 +205,14 @@ def main(argv=None) -> int:
                     "at any time between runs or within one (that run is redone)")
     ap.add_argument("--from-partial", action="store_true", help="run nothing: summarise the runs a stopped study "
                     "finished (OUT/walk_study.partial.json; seeds outermost, so each finished seed has every config)")
+    ap.add_argument("--loop-oracle", action="store_true", help="run nothing: re-solve the runs' pose graphs with "
+                    "exact loops (see above); writes OUT/loop_oracle.json")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.loop_oracle:
+        print(json.dumps(oracle_study(out)["mean_std_cm"]))
+        return 0
     from _stamp import stamp
 
     import torch

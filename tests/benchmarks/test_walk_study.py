@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from tests.benchmarks.conftest import load_script
+from tests.benchmarks.conftest import load_script, script_on_path
+from tests.slam.conftest import tiny_seq  # noqa: F401 - the tiny room, a fixture
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "walk_study.py"
 
@@ -76,3 +77,32 @@ def test_continue_refuses_another_length(study, tmp_path):
     with pytest.raises(SystemExit, match="runs of \\[300\\] frames, not --frames 20"):
         module.main(["--frames", "20", "--seeds", "1", "--configs", "lrslam", "--continue", "--out", str(tmp_path)])
     assert calls == []
+
+
+def test_the_loop_oracle_reproduces_a_runs_correction_and_solves_it_with_exact_loops(tiny_seq, tmp_path):
+    # a tiny run whose camera comes back (tests/slam/loop/test_run_loops.py's settings): re-solved as the run did it,
+    # the oracle must give the run's own two ATEs; with exact loops the loops' ground-truth errors are what the run
+    # measured, and the graph still solves
+    pytest.importorskip("cv2")
+    pytest.importorskip("gtsam")
+    from slam.config import load_config
+    from slam.run.runner import run_to_folder
+    from tests.slam.conftest import TINY
+    from tests.slam.loop.test_run_loops import LOOPS
+
+    cfg = load_config("synthetic", [*TINY, *LOOPS, f"data.path={tiny_seq}"])
+    m = run_to_folder(cfg, tmp_path / "runs" / "lrslam_loops_s0", progress=False, mesh=False)
+    assert m["loops"]["loops"] >= 3
+    (tmp_path / "walk_study.json").write_text(json.dumps({"runs": [
+        {"config": "lrslam, loops", "seed": 0, "folder": "runs/lrslam_loops_s0", "loops": m["loops"]["loops"]},
+        {"config": "lrslam", "seed": 0, "folder": "runs/none", "loops": None}]}))
+    with script_on_path("walk_study") as module:
+        result = module.oracle_study(tmp_path)
+    (row,) = result["runs"]
+    assert row["ate_cm"]["tracker"] == round(m["ate_odometry_rmse_m"] * 100, 3)
+    assert row["ate_cm"]["measured loops"] == round(m["ate_rmse_m"] * 100, 3)
+    assert 0 < row["ate_cm"]["exact loops"] < 5.0
+    measured = sorted(round(lp["gt_error_m"] * 100, 3) for lp in m["loops"]["accepted"])
+    assert sorted(row["loop_gt_error_cm"]) == pytest.approx(measured, abs=6e-3)  # the run rounds them to 0.1 mm
+    written = json.loads((tmp_path / "loop_oracle.json").read_text())
+    assert written["mean_std_cm"]["tracker"][0] == row["ate_cm"]["tracker"]
