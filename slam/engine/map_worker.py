@@ -68,8 +68,7 @@ class MapWorker:
         keyframes: the :class:`slam.engine.keyframes.KeyframeStore` (touched only by mapping calls).
         cfg, intrinsics: the run's config and working-image intrinsics.
         generator: CPU generator for the mapper's pixel and window draws.
-        parallel: run calls beside the tracker (else inline): on a worker thread, or with ``cfg.mapper_process`` in
-            a child process.
+        parallel: run calls beside the tracker (else inline), on a thread or (``cfg.mapper_process``) a process.
         rehearsal: ``(color, depth, pose)`` of a frame the child process rehearses its calls on before
             :meth:`ready` returns (``preload_kernels``, :mod:`slam.engine.rehearsal`); None: no rehearsal.
         free: (parallel only) the tracker never waits after the warm-up, and a call is declined while one runs
@@ -182,6 +181,10 @@ class MapWorker:
     def idle(self) -> bool:
         """Whether no call is running (those queued have all finished)."""
         return all(_finished(f) for _, f in self._queue)
+
+    def drained(self) -> bool:
+        """Whether every call submitted has been applied (:meth:`sync`): idle, no finished result waiting."""
+        return not self._queue
 
     def declines(self, first: bool) -> bool:
         """Whether a call submitted now is not made (counted in ``declined``): free mode, not the warm-up, and a call

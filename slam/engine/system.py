@@ -159,7 +159,7 @@ class SLAM:
         self.state.est.append(pose.cpu())
         self.state.trusted.append(trusted)
         mapped = self._submit(k, frame, trusted, warming)
-        if warming and not mapped and self.mapper.applied and self.mapper.idle():  # no frame to bridge with (no
+        if warming and not mapped and self.mapper.applied and self.mapper.drained():  # no frame to bridge with (no
             self.odometry_first = False  # depth, or odometry failed): the tracker takes over on the first map
             self._event(k, "first map ready, no bridge frame: tracked on the map from the next frame", logging.INFO)
         self.state.sizes.append(list(self.size))
@@ -206,10 +206,10 @@ class SLAM:
 
     def _submit(self, k: int, frame: LoadedFrame, trusted: bool, warming: bool) -> bool:
         """Queue the mapping call of frame ``k`` when the schedule maps it; returns whether it did. ``warming``:
-        frame ``k`` was tracked by depth odometry; the first such frame once the warm-up call has finished is mapped
+        frame ``k`` was tracked by depth odometry; the first such frame once the warm-up call is applied is mapped
         as a keyframe (tracking goes on by odometry until that call has finished too, so the map reaches the camera)."""
         st, cfg = self.state, self.cfg
-        if not (frame.ok and frame.has_depth and trusted) or (warming and not self.mapper.idle()):
+        if not (frame.ok and frame.has_depth and trusted) or (warming and not self.mapper.drained()):
             return False
         grow_scene(self, k, frame.depth)
         st.prev_depth, st.prev_depth_k = frame.depth, k
