@@ -28,8 +28,9 @@ def associate(q, qn, vp, np_, okp, fx, fy, cx, cy, dmax, pmax, min_cos, idx, src
     """Projective association of moved points ``q [P, 3]`` (previous camera frame) with their moved normals
     ``qn [P, 3]`` against the previous level's points ``vp``, normals ``np_`` ``[H, W, 3]`` and validity ``okp
     [H, W]``, kept where the point-to-plane distance is below ``dmax``, the points' distance below ``pmax`` and
-    the normals' cosine above ``min_cos``. Writes the kept matches' point indices into ``idx [P]`` and their moved points, target points and
-    target normals into ``src``, ``tgt``, ``nrm`` ``[P, 3]``, in point order; returns how many were kept."""
+    the normals' cosine above ``min_cos``. Writes the kept matches' point indices into ``idx [P]`` and their moved
+    points, target points and target normals into ``src``, ``tgt``, ``nrm`` ``[P, 3]``, in point order; returns how
+    many were kept."""
     H, W = okp.shape
     floor = 1e-6
     m = 0
@@ -245,8 +246,7 @@ def register(depth_prev, depth_cur, T, cam, levels, iters, max_dist, point_gate,
     """``odometry.icp_relative_pose``'s loop over the pyramid on numpy float64 arrays: depths ``[H, W]``, ``T``
     ``[4, 4]`` the start (updated in place), ``cam`` the full image's ``(fx, fy, cx, cy)``, ``smooth`` the normals'
     averaging square (:func:`smooth_normals`; 1: none), ``point_gate`` times a level's ``max_dist`` the largest
-    distance between a match's points. Returns ``(inliers, rmse,
-    failed)``: the last step's inlier share and RMS residual, and whether a level had too few points or matches
+    distance between a match's points. Returns ``(inliers, rmse, failed)``: the last step's inlier share and RMS residual, and whether a level had too few points or matches
     (the caller's failure result, ``T`` where it stopped)."""
     fx, fy, cx, cy = cam
     out = np.array([0.0, np.inf])
