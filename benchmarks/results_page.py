@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import difflib
 import json
+import statistics
 import sys
 from pathlib import Path
 
@@ -204,7 +205,31 @@ def walk_loops() -> str:
         "against runs without them in the dev-sequence table below.", "",
         m.table(d["summary"], d["series"], d["stamp"], d["frames"], seeds), "", f"Per seed: {per_seed}.", "",
         _source("walk_loops/walk_study.json", "python benchmarks/walk_study.py --frames 2100 --seeds 5 --configs "
-                "'lrslam, loops' --mesh-resolution 0.04 --out benchmarks/results/walk_loops")])
+                "'lrslam, loops' --mesh-resolution 0.04 --out benchmarks/results/walk_loops"), "",
+        refinement()])
+
+
+def refinement() -> str:
+    d = _json("walk_loops/refine.json")
+    names = {"corrected": "on the corrected poses (what a run does)", "tracker": "on the tracker's poses (control)"}
+
+    def pm(v):
+        return "-" if v is None else f"{v[0]:.2f} ± {v[1]:.2f}"
+
+    rows = ["| refinement | accuracy cm | completion cm | completion ratio % | depth L1 cm | seconds |", "|---|---|---|"
+            "---|---|---|"]
+    for poses, st in d["mean_std"].items():
+        secs = [r["refined"]["seconds"] for r in d["runs"] if r["poses"] == poses and r.get("refined")]
+        rows.append(f"| {names.get(poses, 'none (the runs above)')} | {pm(st.get('accuracy_cm'))} | "
+                    f"{pm(st.get('completion_cm'))} | {pm(st.get('completion_ratio_pct'))} | "
+                    f"{pm(st.get('depth_l1_cm'))} | {f'{statistics.median(secs):.1f}' if secs else '-'} |")
+    return "\n".join([
+        f"The global refinement (`loops.refine_iters={d['iters']}`, docs/loops.md) on the same runs' ends: each run's "
+        "last checkpoint resumed, so only the pose graph, the refinement and the mesh run again. The control re-fits "
+        "as long on the tracker's poses, so the difference between the last two rows is what the loops' correction "
+        "does to the map. Mean ± std over the seeds; median seconds of the refinement.", "",
+        _stamp_line(d["stamp"]), "",
+        *rows, "", _source("walk_loops/refine.json", d["command"])])
 
 
 def loops_dev() -> str:

@@ -23,6 +23,11 @@ Writes ``walk_study.json`` (every run's values per seed, the summaries, the per-
 with each accepted loop's relative pose taken from the ground truth, and writes ``loop_oracle.json``: the ATE of the
 tracker, of the measured loops' correction (the run's own) and of exact loops'. If exact loops leave the ATE where
 it was, better loop measurement cannot help: the error is one the loops do not observe.
+
+``--refine-study ITERS`` runs only the end of each run with loops (written without the global refinement): its
+checkpoint is resumed with ``loops.refine_iters=ITERS`` into OUT/refine/, once on the corrected poses and once, the
+control, on the tracker's, and ``refine.json`` gives the mesh's accuracy, completion and depth L1 of both beside the
+run's own.
 """
 
 from __future__ import annotations
@@ -192,6 +197,81 @@ def oracle_study(out: Path) -> dict:
     return result
 
 
+def refine_run(folder: Path, dest: Path, iters: int, on_tracker: bool) -> dict:
+    """The global refinement (``loops.refine_iters``) of one finished run with loops, written before the refinement
+    existed or with ``loops.refine_iters=0``: its checkpoint resumed into ``dest`` with ``iters`` (the run's last frame
+    is done, so only the end of the run happens: the pose graph, the refinement, the mesh and its metrics; a
+    run may not change ``loops.refine_iters`` on resume, this study may).
+    ``on_tracker``: the control, the same iterations with the keyframes left at the tracker's poses and the mesh culled
+    with them (the refinement alone, without the correction). Returns the reconstruction metrics (cm, %) and the
+    refinement's statistics."""
+    import shutil
+    from unittest import mock
+
+    import tdfields
+    import slam.engine.refine as refine
+    import slam.run.checkpoint as checkpoint
+    from slam.config.validate import config_from_dict
+    from slam.engine.view import RunView
+    from slam.run.runner import resume_config, run_to_folder
+
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in ("checkpoint.pt", "config.yaml"):
+        shutil.copy(folder / name, dest / name)
+    if tdfields.load(dest / "checkpoint.pt")["extra"]["run"]["state"].get("refined") is not None:
+        raise SystemExit(f"{folder}: its run refined the map already (map_refined in its metrics.json)")
+    d = resume_config(dest).to_dict()
+    d["loops"]["refine_iters"] = iters
+    with mock.patch.object(refine, "move_keyframes", (lambda kfs, before, after: 0.0) if on_tracker
+                           else refine.move_keyframes), \
+            mock.patch.object(RunView, "map_poses", RunView.odometry_poses if on_tracker else RunView.map_poses), \
+            mock.patch.object(checkpoint, "RESUME_KEYS", checkpoint.RESUME_KEYS + ("loops.refine_iters",)):
+        m = run_to_folder(config_from_dict(d), dest, progress=False, resume=True)
+    rec = m["reconstruction"]
+    return {"run": folder.name, "poses": "tracker" if on_tracker else "corrected",
+            "accuracy_cm": 100 * rec["accuracy_m"], "completion_cm": 100 * rec["completion_m"],
+            "completion_ratio_pct": 100 * rec["completion_ratio"], "depth_l1_cm": 100 * rec["depth_l1_m"],
+            "refined": m.get("map_refined")}
+
+
+def refine_study(out: Path, iters: int) -> dict:
+    """:func:`refine_run` of every run with loops in ``out``/walk_study.json, on the corrected poses and on the
+    tracker's, beside the run's own metrics (no refinement); written to ``out``/refine.json."""
+    from _stamp import stamp
+
+    runs = [r for r in json.loads((out / "walk_study.json").read_text())["runs"] if r.get("loops") is not None]
+    rows = []
+    for r in runs:
+        rows.append(own_row(out / r["folder"]))
+        for on_tracker in (False, True):
+            rows.append(refine_run(out / r["folder"], out / "refine" / f"{Path(r['folder']).name}_"
+                                   f"{'tracker' if on_tracker else 'corrected'}", iters, on_tracker))
+    result = {"stamp": stamp(), "command": f"python benchmarks/walk_study.py --refine-study {iters} --out {out}",
+              "iters": iters, "runs": rows, "mean_std": refine_summary(rows)}
+    (out / "refine.json").write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def own_row(folder: Path) -> dict:
+    """A run's own reconstruction metrics (cm, %; None where it wrote no mesh), from its metrics.json."""
+    rec = json.loads((folder / "metrics.json").read_text()).get("reconstruction") or {}
+    cm = (lambda k: None if rec.get(k) is None else 100 * rec[k])
+    return {"run": folder.name, "poses": "none (the run's own)", "accuracy_cm": cm("accuracy_m"),
+            "completion_cm": cm("completion_m"), "completion_ratio_pct": cm("completion_ratio"),
+            "depth_l1_cm": cm("depth_l1_m")}
+
+
+def refine_summary(rows: list[dict]) -> dict:
+    """Mean ± std per refinement (``poses``) of each metric, over the rows that have it."""
+    summary = {}
+    for poses in dict.fromkeys(row["poses"] for row in rows):
+        got = [row for row in rows if row["poses"] == poses]
+        summary[poses] = {k: [round(statistics.mean(v), 3), round(statistics.stdev(v), 3) if len(v) > 1 else None]
+                          for k in ("accuracy_cm", "completion_cm", "completion_ratio_pct", "depth_l1_cm")
+                          for v in [[row[k] for row in got if row.get(k) is not None]] if v}
+    return summary
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=1050, help="frames of the walk (1050: the way out, 20 m)")
@@ -207,11 +287,17 @@ def main(argv=None) -> int:
                     "finished (OUT/walk_study.partial.json; seeds outermost, so each finished seed has every config)")
     ap.add_argument("--loop-oracle", action="store_true", help="run nothing: re-solve the runs' pose graphs with "
                     "exact loops (see above); writes OUT/loop_oracle.json")
+    ap.add_argument("--refine-study", type=int, metavar="ITERS", help="run only the end of each run with loops: "
+                    "the global refinement of ITERS iterations on the corrected poses and, as the control, on the "
+                    "tracker's (see above); writes OUT/refine.json")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.loop_oracle:
         print(json.dumps(oracle_study(out)["mean_std_cm"]))
+        return 0
+    if args.refine_study is not None:
+        print(json.dumps(refine_study(out, args.refine_study)["mean_std"]))
         return 0
     from _stamp import stamp
 

@@ -183,9 +183,10 @@ class _Optimiser:
             self.moments.state = {self.names[p]: dict(st) for p, st in self.map.state.items()}
 
 
-def _loss(scene, colors, depths, poses, intrinsics, cfg: Config, per_frame: int, generator):
-    """The mapping loss of one iteration: ``per_frame`` fresh pixels of every window frame (None when no ray's
-    surface is inside the box)."""
+def mapping_loss(scene, colors, depths, poses, intrinsics, cfg: Config, per_frame: int, generator):
+    """The mapping loss of one iteration (a scalar tensor): ``per_frame`` fresh pixels of every frame of ``colors``
+    ``[F, H, W, 3]`` in [0, 1], ``depths`` ``[F, H, W]`` metres, at ``poses`` ``[F, 7]`` camera-to-world; None when no
+    ray's surface is inside the box."""
     F, H, W = depths.shape
     device = depths.device
     v, u = sample_pixels(H, W, per_frame * F, 0, 0, generator)
@@ -265,12 +266,12 @@ def map_frame(
     free = _free_poses(frame_ids, mc.joint_opt and not first and len(keyframes) > mc.ba_min_keyframes)
     opt = _Optimiser(scene, cfg, first, poses0, free, moments)
     steps, skipped, last = 0, 0, float("nan")
-    per_frame = max(mc.pixels // len(frame_ids), 1)
+    each = max(mc.pixels // len(frame_ids), 1)  # pixels per window frame
     free_dev = free.to(depth.device)
     for _ in range(mc.iters_first if first else iters or mc.iters):
         if should_stop is not None and should_stop():
             raise MappingAborted(f"mapping call of frame {index} aborted")
-        loss = _loss(scene, colors, depths, opt.window_poses(poses0, free_dev), intrinsics, cfg, per_frame, generator)
+        loss = mapping_loss(scene, colors, depths, opt.window_poses(poses0, free_dev), intrinsics, cfg, each, generator)
         if loss is None:
             break
         opt.zero_grad()

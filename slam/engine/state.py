@@ -37,6 +37,8 @@ class RunState:
     # loops.enabled, after the last frame: every frame's loop-corrected [N, 4, 4] camera-to-world and the summary
     corrected: object = field(default=None, repr=False, metadata={"transient": True})
     loop_summary: dict | None = field(default=None, repr=False, metadata={"transient": True})
+    # loops.refine_iters: the map re-fitted on the corrected poses (slam.engine.refine), once; its statistics
+    refined: dict | None = None
 
     def last_trusted(self) -> int:
         """Position of the last trusted frame (-1: none yet)."""

@@ -33,6 +33,7 @@ from slam.engine.map_worker import MapWorker
 from slam.engine.observers import FrameRecord, Observer
 from slam.engine.recovery import TrackInput
 from slam.engine.realtime import Replay, arrival_times, note_latency, take_next
+from slam.engine.refine import follow_corrected
 from slam.engine.rehearsal import preload
 from slam.engine.runtime import float_fingerprint, keep_freed_memory, release_freed_memory, set_threads
 from slam.engine.schedule import call_iters, is_keyframe
@@ -52,11 +53,8 @@ __all__ = ["SLAM", "RunState", "TooManyBadFrames"]
 
 
 class SLAM:
-    """Tracking + mapping over a dataset with one scene model.
-
-    Args:
-        cfg: resolved config; dataset: a ``slam.data`` dataset; device: torch device.
-    """
+    """Tracking + mapping over a dataset with one scene model (``cfg``: the resolved config; ``dataset``: a
+    ``slam.data`` dataset; ``device``: torch device)."""
 
     def __init__(self, cfg: Config, dataset, device: torch.device | str = "cpu"):
         self.cfg, self.ds, self.device = cfg, dataset, torch.device(device)
@@ -229,12 +227,13 @@ class SLAM:
         return True
 
     def finish(self) -> None:
-        """Wait for the mapper and apply its last results: at the end of the sequence, before the final outputs.
-        Never on a stop: a checkpoint keeps the pending calls instead (:mod:`slam.run.checkpoint`), so a resumed run
-        applies them on the frames the uninterrupted run would have."""
+        """Wait for the mapper and apply its last results, then close the loops and refine the map on them: at the end
+        of the sequence, before the outputs. Never on a stop: a checkpoint keeps the pending calls instead, so a resumed
+        run applies them on the frames the uninterrupted run would have (:mod:`slam.run.checkpoint`)."""
         self._apply(self.mapper.drain())
         if self.loops is not None and self.state.est:
             close_run_loops(self.loops, self.state, self.indices, pose_to_matrix(torch.stack(self.state.est)).numpy())
+            follow_corrected(self)  # the map too, when the loops moved the trajectory
 
     def close(self, abort: bool = False) -> None:
         """Stop the reader and the mapper (thread or process) and delete the keyframes' spill file (it can hold

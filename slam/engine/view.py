@@ -72,16 +72,26 @@ class RunView:
 
     def poses(self) -> np.ndarray:
         """``[done, 4, 4]`` estimated camera-to-world of the processed frames: the trajectory a run writes, corrected
-        by the pose graph once a run with ``loops.enabled`` has ended (:mod:`slam.loop`), else :meth:`map_poses`."""
-        if self.state.corrected is not None and len(self.state.corrected) == self.done:
+        by the pose graph once a run with ``loops.enabled`` has ended (:mod:`slam.loop`), else the tracker's."""
+        if self._corrected():
             return np.asarray(self.state.corrected)
-        return self.map_poses()
+        return self.odometry_poses()
 
     def map_poses(self) -> np.ndarray:
-        """``[done, 4, 4]`` the tracker's camera-to-world (the odometry): the poses the map was built with."""
+        """``[done, 4, 4]`` camera-to-world the map is in: the corrected poses once the map was re-fitted on them
+        (``loops.refine_iters``, :mod:`slam.engine.refine`), else the tracker's (:meth:`odometry_poses`)."""
+        if self.state.refined is not None and self._corrected():
+            return np.asarray(self.state.corrected)
+        return self.odometry_poses()
+
+    def odometry_poses(self) -> np.ndarray:
+        """``[done, 4, 4]`` the tracker's camera-to-world (with BA's refinements), before any loop correction."""
         if not self.state.est:
             return np.zeros((0, 4, 4))
         return pose_to_matrix(torch.stack(self.state.est)).numpy()
+
+    def _corrected(self) -> bool:
+        return self.state.corrected is not None and len(self.state.corrected) == self.done
 
     def frame_timestamps(self) -> np.ndarray:
         """``[done]`` seconds of the processed frames (the dataset's timestamps, else 30 Hz from 0)."""

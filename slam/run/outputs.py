@@ -32,7 +32,7 @@ def write_trajectories(run, out: Path) -> None:
         seval.write_tum_trajectory(tmp, ts, poses)
     if run.state.corrected is not None:  # loop closure ran: the tracker's own trajectory beside the corrected one
         with replacing(out / "trajectory_odometry.txt", "odometry trajectory") as tmp:
-            seval.write_tum_trajectory(tmp, ts, run.map_poses())
+            seval.write_tum_trajectory(tmp, ts, run.odometry_poses())
     if run.gt is not None:
         with replacing(out / "trajectory_gt.txt", "ground-truth trajectory") as tmp:
             seval.write_tum_trajectory(tmp, ts, run.gt[: len(poses)].numpy())
@@ -70,6 +70,8 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
     }
     if run.state.loop_summary is not None:
         metrics["loops"] = run.state.loop_summary
+    if run.state.refined is not None:
+        metrics["map_refined"] = run.state.refined
     # the turn and move between the frames the run took (a real-time run's: the ones it did not drop)
     metrics["frame_steps"] = seval.frame_steps(run.poses()) if run.state.est else None
     if cfg.data.realtime:
@@ -87,7 +89,7 @@ def trajectory_metrics(run, out: Path | None = None, plot: bool = True) -> dict:
         else:
             metrics.update(ate_rmse_m=res.rmse, ate_mean_m=res.mean, ate_median_m=res.median, ate_max_m=res.max)
             if run.state.corrected is not None:
-                metrics["ate_odometry_rmse_m"] = seval.ate(run.map_poses(), gt).rmse
+                metrics["ate_odometry_rmse_m"] = seval.ate(run.odometry_poses(), gt).rmse
             if run.state.loop_summary is not None:
                 loop_truth(run.state.loop_summary, gt)
             if out is not None and plot:

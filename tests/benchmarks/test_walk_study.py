@@ -79,7 +79,7 @@ def test_continue_refuses_another_length(study, tmp_path):
     assert calls == []
 
 
-def test_the_loop_oracle_reproduces_a_runs_correction_and_solves_it_with_exact_loops(tiny_seq, tmp_path):
+def test_the_loop_oracle_and_the_refinement_study_on_a_run_with_loops(tiny_seq, tmp_path):
     # a tiny run whose camera comes back (tests/slam/loop/test_run_loops.py's settings): re-solved as the run did it,
     # the oracle must give the run's own two ATEs; with exact loops the loops' ground-truth errors are what the run
     # measured, and the graph still solves
@@ -90,7 +90,8 @@ def test_the_loop_oracle_reproduces_a_runs_correction_and_solves_it_with_exact_l
     from tests.slam.conftest import TINY
     from tests.slam.loop.test_run_loops import LOOPS
 
-    cfg = load_config("synthetic", [*TINY, *LOOPS, f"data.path={tiny_seq}"])
+    # written without the global refinement, as the walk's runs before it existed: the refinement study below
+    cfg = load_config("synthetic", [*TINY, *LOOPS, f"data.path={tiny_seq}", "loops.refine_iters=0"])
     m = run_to_folder(cfg, tmp_path / "runs" / "lrslam_loops_s0", progress=False, mesh=False)
     assert m["loops"]["loops"] >= 3
     (tmp_path / "walk_study.json").write_text(json.dumps({"runs": [
@@ -106,3 +107,15 @@ def test_the_loop_oracle_reproduces_a_runs_correction_and_solves_it_with_exact_l
     assert sorted(row["loop_gt_error_cm"]) == pytest.approx(measured, abs=6e-3)  # the run rounds them to 0.1 mm
     written = json.loads((tmp_path / "loop_oracle.json").read_text())
     assert written["mean_std_cm"]["tracker"][0] == row["ate_cm"]["tracker"]
+
+    # the end of the run again with the global refinement: on the corrected poses the keyframes move, on the
+    # tracker's (the control) they stay; both meshes are measured against the room's
+    with script_on_path("walk_study") as module:
+        study = module.refine_study(tmp_path, 10)
+    own, corrected, tracker = study["runs"]
+    assert own["poses"].startswith("none") and own["accuracy_cm"] is None  # this run wrote no mesh
+    assert corrected["refined"]["steps"] == 10 and corrected["refined"]["keyframe_move_max_m"] > 0
+    assert tracker["refined"]["steps"] == 10 and tracker["refined"]["keyframe_move_max_m"] == 0
+    for row in (corrected, tracker):
+        assert 0 < row["accuracy_cm"] < 10 and 0 < row["completion_ratio_pct"] <= 100
+    assert set(json.loads((tmp_path / "refine.json").read_text())["mean_std"]) == {own["poses"], "corrected", "tracker"}

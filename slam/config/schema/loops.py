@@ -45,3 +45,6 @@ class LoopsConfig:
     untrusted_scale: float = num(100.0, lo=1, hi=1e6, doc=(
         "odometry edges over a frame the tracking guard did not trust get sigmas this many times larger: the graph "
         "puts the correction where the tracker slipped"))
+    refine_iters: int = num(500, lo=0, hi=1_000_000, doc=(
+        "after a run whose loops corrected the trajectory: the keyframes move with the correction and the fields are "
+        "re-fitted on them, poses fixed, for this many mapping iterations (0: the map stays in the tracker's frame)"))

@@ -4,7 +4,11 @@ and a resumed run that gives the uninterrupted run's loops and trajectories, byt
 import csv
 import json
 
+import numpy as np
 import pytest
+import torch
+
+import tdfields
 
 pytest.importorskip("cv2")
 pytest.importorskip("gtsam")
@@ -12,7 +16,7 @@ pytest.importorskip("gtsam")
 from tests.slam.conftest import TINY  # noqa: E402
 
 LOOPS = ["loops.enabled=true", "loops.keyframe_distance=0.02", "loops.keyframe_angle=1", "loops.min_gap_frames=6",
-         "loops.vocabulary_after=2", "loops.words=8", "data.max_frames=16"]
+         "loops.vocabulary_after=2", "loops.words=8", "loops.refine_iters=20", "data.max_frames=16"]
 
 
 def test_a_run_with_loops_writes_both_trajectories_and_resumes_to_the_same(tiny_seq, tmp_path):
@@ -33,12 +37,26 @@ def test_a_run_with_loops_writes_both_trajectories_and_resumes_to_the_same(tiny_
     closed = {int(r["frame"]): int(r["loop_with"]) for r in rows if r["loop_with"]}
     assert closed and closed == {e["frame"]: e["with_frame"] for e in whole["events"] if e["event"] == "loop closed"}
 
+    # the map follows the corrected poses: the keyframes moved, the fields re-fitted, the checkpoint in that frame
+    refined = whole["map_refined"]
+    assert refined["steps"] == 20 and refined["keyframe_move_max_m"] > 0 and refined["keyframes"] >= 5
+    saved = tdfields.load(tmp_path / "whole" / "checkpoint.pt")
+    corrected = np.loadtxt(tmp_path / "whole" / "trajectory.txt")[:, 1:4]
+    np.testing.assert_allclose(saved["extra"]["poses"][:, :3, 3].numpy(), corrected, atol=1e-4)
+
     with pytest.raises(RunInterrupted):
         run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, stop_after=9)
     resumed = run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, resume=True)
     for name in ("trajectory.txt", "trajectory_odometry.txt"):
         assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "resumed" / name).read_bytes()
     assert json.dumps(resumed["loops"], sort_keys=True) == json.dumps(whole["loops"], sort_keys=True)
+    again = tdfields.load(tmp_path / "resumed" / "checkpoint.pt")  # the refined map too, bit for bit
+    assert all(torch.equal(t, again["state_dict"][name]) for name, t in saved["state_dict"].items())
+    assert torch.equal(saved["extra"]["keyframe_poses"], again["extra"]["keyframe_poses"])
+    run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, resume=True)  # a finished run: refined once
+    twice = tdfields.load(tmp_path / "resumed" / "checkpoint.pt")
+    assert all(torch.equal(t, twice["state_dict"][name]) for name, t in saved["state_dict"].items())
+    assert torch.equal(saved["extra"]["keyframe_poses"], twice["extra"]["keyframe_poses"])
 
 
 def test_a_checkpoint_without_loops_is_not_resumed_with_them(tiny_seq, tmp_path):
