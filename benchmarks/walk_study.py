@@ -146,6 +146,14 @@ def table(summ: list[dict], curves: dict, st: dict, frames: int, seeds: int) -> 
     return "\n".join(lines)
 
 
+def need_files(folder: Path, names: tuple[str, ...]) -> None:
+    """Exit with the files a study needs that ``folder`` (a run of walk_study.json) lacks."""
+    missing = [name for name in names if not (folder / name).is_file()]
+    if missing:
+        raise SystemExit(f"{folder}: no {', '.join(missing)}: the study reads the runs of walk_study.json in --out "
+                         "(run the walk study into the same --out first)")
+
+
 def loop_oracle(folder: Path) -> dict:
     """ATE (cm) of one run's tracker, its measured loops' correction and exact loops' (the ground truth's relative
     pose in each accepted loop; everything else as the run had it: keyframes, odometry edges, trusted flags)."""
@@ -157,6 +165,7 @@ def loop_oracle(folder: Path) -> dict:
     from slam.eval.trajectory import read_tum_trajectory
     from slam.loop.closer import LoopCloser
 
+    need_files(folder, ("config.yaml", "checkpoint.pt", "trajectory_odometry.txt", "trajectory_gt.txt", "frames.csv"))
     cfg = load_config(str(folder / "config.yaml"))
     closer = LoopCloser(cfg.loops, None, cfg.seed)
     closer.load_state_dict(torch.load(folder / "checkpoint.pt", weights_only=False, map_location="cpu")["extra"][
@@ -215,6 +224,7 @@ def refine_run(folder: Path, dest: Path, iters: int, on_tracker: bool) -> dict:
     from slam.engine.view import RunView
     from slam.run.runner import resume_config, run_to_folder
 
+    need_files(folder, ("checkpoint.pt", "config.yaml", "metrics.json"))
     dest.mkdir(parents=True, exist_ok=True)
     for name in ("checkpoint.pt", "config.yaml"):
         shutil.copy(folder / name, dest / name)
@@ -254,6 +264,7 @@ def refine_study(out: Path, iters: int) -> dict:
 
 def own_row(folder: Path) -> dict:
     """A run's own reconstruction metrics (cm, %; None where it wrote no mesh), from its metrics.json."""
+    need_files(folder, ("metrics.json",))
     rec = json.loads((folder / "metrics.json").read_text()).get("reconstruction") or {}
     cm = (lambda k: None if rec.get(k) is None else 100 * rec[k])
     return {"run": folder.name, "poses": "none (the run's own)", "accuracy_cm": cm("accuracy_m"),

@@ -119,3 +119,13 @@ def test_the_loop_oracle_and_the_refinement_study_on_a_run_with_loops(tiny_seq, 
     for row in (corrected, tracker):
         assert 0 < row["accuracy_cm"] < 10 and 0 < row["completion_ratio_pct"] <= 100
     assert set(json.loads((tmp_path / "refine.json").read_text())["mean_std"]) == {own["poses"], "corrected", "tracker"}
+
+
+def test_the_offline_studies_name_the_run_files_they_miss(tmp_path):
+    (tmp_path / "walk_study.json").write_text(json.dumps({"runs": [
+        {"config": "lrslam, loops", "seed": 0, "folder": "runs/gone_s0", "loops": 3}]}))
+    with script_on_path("walk_study") as module:
+        with pytest.raises(SystemExit, match="gone_s0: no config.yaml, checkpoint.pt, .*frames.csv: the study reads"):
+            module.oracle_study(tmp_path)
+        with pytest.raises(SystemExit, match="gone_s0: no metrics.json"):
+            module.refine_study(tmp_path, 10)
