@@ -113,8 +113,7 @@ def profiles() -> str:
         "kernels' load and the mapping process, reported apart). The last columns: the mean per-seed difference in "
         "ATE with its 95 % interval, and frames lost. `gentle` and `fast` are the fr1_rpy windows (pairs 125-224 "
         "and 0-124), `dev_range` pairs 0-224, `room` the bundled synthetic room, `walk300` the synthetic walk's "
-        "first 300 frames. Measured before depth ICP's plane gate (13c3e68); the default's ATE with it, paired with "
-        "these `quality` runs, is in docs/profiles.md (Accuracy) and `benchmarks/results/icp_gate/icp_gate.json`.",
+        "first 300 frames.",
         "", m.table(d), "",
         _source("profile_targets/profile_targets.json",
                 "python benchmarks/profile_targets.py --before <a worktree of 20b7b9c> --seeds 5 "
