@@ -248,6 +248,8 @@ def close_run_loops(closer: LoopCloser, state, indices, poses: np.ndarray) -> No
     ``state.loop_summary`` and adds a "loop closed" event per loop (``state``: a :class:`slam.engine.state.RunState`;
     ``indices``: the dataset index of each frame position)."""
     state.corrected, state.loop_summary = closer.close_loops(poses, list(state.trusted))
+    # a finished run resumed again closes its loops again: its events once, not twice
+    state.events[:] = [e for e in state.events if e.get("event") != "loop closed"]
     for lp in state.loop_summary["accepted"]:
         state.events.append({"frame": int(indices[lp["query"]]), "event": "loop closed",
                              "with_frame": int(indices[lp["match"]]),

@@ -53,7 +53,10 @@ def test_a_run_with_loops_writes_both_trajectories_and_resumes_to_the_same(tiny_
     again = tdfields.load(tmp_path / "resumed" / "checkpoint.pt")  # the refined map too, bit for bit
     assert all(torch.equal(t, again["state_dict"][name]) for name, t in saved["state_dict"].items())
     assert torch.equal(saved["extra"]["keyframe_poses"], again["extra"]["keyframe_poses"])
-    run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, resume=True)  # a finished run: refined once
+    # a finished run resumed again: refined once, its loops' events once
+    again_m = run_to_folder(cfg, tmp_path / "resumed", progress=False, mesh=False, resume=True)
+    assert [e for e in again_m["events"] if e["event"] == "loop closed"] == [
+        e for e in whole["events"] if e["event"] == "loop closed"]
     twice = tdfields.load(tmp_path / "resumed" / "checkpoint.pt")
     assert all(torch.equal(t, twice["state_dict"][name]) for name, t in saved["state_dict"].items())
     assert torch.equal(saved["extra"]["keyframe_poses"], twice["extra"]["keyframe_poses"])
