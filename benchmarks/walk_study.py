@@ -146,6 +146,16 @@ def table(summ: list[dict], curves: dict, st: dict, frames: int, seeds: int) -> 
     return "\n".join(lines)
 
 
+def loop_runs(out: Path) -> list[dict]:
+    """The runs with loop closure that ``out``/walk_study.json lists."""
+    return [r for r in json.loads((out / "walk_study.json").read_text())["runs"] if r.get("loops") is not None]
+
+
+def mean_std(values: list[float]) -> list:
+    """``[mean, std]`` rounded to 3 decimals (std None for a single value)."""
+    return [round(statistics.mean(values), 3), round(statistics.stdev(values), 3) if len(values) > 1 else None]
+
+
 def need_files(folder: Path, names: tuple[str, ...]) -> None:
     """Exit with the files a study needs that ``folder`` (a run of walk_study.json) lacks."""
     missing = [name for name in names if not (folder / name).is_file()]
@@ -196,10 +206,9 @@ def oracle_study(out: Path) -> dict:
     ``out``/loop_oracle.json."""
     from _stamp import stamp
 
-    runs = [r for r in json.loads((out / "walk_study.json").read_text())["runs"] if r.get("loops") is not None]
+    runs = loop_runs(out)
     rows = [loop_oracle(out / r["folder"]) for r in runs]
-    summary = {k: [round(statistics.mean(v), 3), round(statistics.stdev(v), 3) if len(v) > 1 else None]
-               for k in ("tracker", "measured loops", "exact loops") for v in [[r["ate_cm"][k] for r in rows]]}
+    summary = {k: mean_std([r["ate_cm"][k] for r in rows]) for k in ("tracker", "measured loops", "exact loops")}
     result = {"stamp": stamp(), "command": f"python benchmarks/walk_study.py --loop-oracle --out {out}",
               "runs": rows, "mean_std_cm": summary}
     (out / "loop_oracle.json").write_text(json.dumps(result, indent=1) + "\n")
@@ -249,7 +258,7 @@ def refine_study(out: Path, iters: int) -> dict:
     tracker's, beside the run's own metrics (no refinement); written to ``out``/refine.json."""
     from _stamp import stamp
 
-    runs = [r for r in json.loads((out / "walk_study.json").read_text())["runs"] if r.get("loops") is not None]
+    runs = loop_runs(out)
     rows = []
     for r in runs:
         rows.append(own_row(out / r["folder"]))
@@ -277,8 +286,8 @@ def refine_summary(rows: list[dict]) -> dict:
     summary = {}
     for poses in dict.fromkeys(row["poses"] for row in rows):
         got = [row for row in rows if row["poses"] == poses]
-        summary[poses] = {k: [round(statistics.mean(v), 3), round(statistics.stdev(v), 3) if len(v) > 1 else None]
-                          for k in ("accuracy_cm", "completion_cm", "completion_ratio_pct", "depth_l1_cm")
+        summary[poses] = {k: mean_std(v) for k in ("accuracy_cm", "completion_cm", "completion_ratio_pct",
+                                                   "depth_l1_cm")
                           for v in [[row[k] for row in got if row.get(k) is not None]] if v}
     return summary
 

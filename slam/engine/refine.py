@@ -82,15 +82,16 @@ def refine_fields(scene, keyframes: KeyframeStore, cfg, intrinsics, generator: t
             "seconds": time.perf_counter() - t0}
 
 
-def follow_corrected(s) -> None:
+def follow_corrected(s, odometry: np.ndarray) -> None:
     """After :func:`slam.loop.closer.close_run_loops` on ``s`` (a :class:`slam.engine.system.SLAM`): when a loop
-    corrected the trajectory and ``loops.refine_iters`` > 0, move the keyframes from the tracker's poses to the
-    corrected ones, re-fit the map on them, hand the tracker's copy the result and
-    record ``state.refined``. Once per run: a resumed run that had refined keeps its refined map and moved keyframes."""
+    corrected the trajectory and ``loops.refine_iters`` > 0, move the keyframes from the tracker's poses
+    ``odometry`` ``[N, 4, 4]`` (the ones the graph was given) to the corrected ones, re-fit the map on them, hand
+    the tracker's copy the result and record ``state.refined``. Once per run: a resumed run that had refined keeps
+    its refined map and moved keyframes."""
     st, iters = s.state, s.cfg.loops.refine_iters
     if st.refined is not None or st.corrected is None or not iters or not st.loop_summary.get("loops"):
         return
-    moved = move_keyframes(s.keyframes, pose_to_matrix(torch.stack(st.est)).numpy(), st.corrected)
+    moved = move_keyframes(s.keyframes, odometry, st.corrected)
     stats = refine_fields(s.scene, s.keyframes, s.cfg, s.intr, s.map_gen, iters)
     if s.mapper.track_scene is not s.scene:
         with torch.no_grad():

@@ -232,8 +232,9 @@ class SLAM:
         run applies them on the frames the uninterrupted run would have (:mod:`slam.run.checkpoint`)."""
         self._apply(self.mapper.drain())
         if self.loops is not None and self.state.est:
-            close_run_loops(self.loops, self.state, self.indices, pose_to_matrix(torch.stack(self.state.est)).numpy())
-            follow_corrected(self)  # the map too, when the loops moved the trajectory
+            odometry = pose_to_matrix(torch.stack(self.state.est)).numpy()
+            close_run_loops(self.loops, self.state, self.indices, odometry)
+            follow_corrected(self, odometry)  # the map too, when the loops moved the trajectory
 
     def close(self, abort: bool = False) -> None:
         """Stop the reader and the mapper (thread or process) and delete the keyframes' spill file (it can hold
