@@ -83,10 +83,13 @@ def retry_iters(cfg) -> int:
 
 
 def retry_config(cfg):
-    """The config of a recovery attempt: ``cfg``, with ``tracking.recovery_optimizer: adam`` the Adam tracker."""
+    """The config of a recovery attempt: ``cfg``, with ``tracking.recovery_optimizer: adam`` the Adam tracker (a
+    real-time run, ``data.realtime`` as ``--realtime`` and ``lrslam live`` set it: ``realtime_recovery_optimizer``)."""
     import dataclasses
 
-    if cfg.tracking.recovery_optimizer == "same" or cfg.tracking.optimizer == "adam":
+    tc = cfg.tracking
+    choice = tc.realtime_recovery_optimizer if cfg.data.realtime else tc.recovery_optimizer
+    if choice == "same" or tc.optimizer == "adam":
         return cfg
     return dataclasses.replace(cfg, tracking=dataclasses.replace(cfg.tracking, optimizer="adam"))
 

@@ -60,6 +60,10 @@ class TrackingConfig:
     recovery_optimizer: str = choice("same", ("same", "adam"), doc=(
         "(ours) the optimiser of the recovery attempts: the tracker's own, or `adam` (with `optimizer: gauss_newton`: "
         "a first-order retry where the second-order step failed, as at a fast turn into a wall)"))
+    realtime_recovery_optimizer: str = choice("same", ("same", "adam"), doc=(
+        "(ours) `recovery_optimizer` of a real-time run (`data.realtime`, a live camera): a camera does not wait, and "
+        "an Adam retry at twice the budget held a real-time fr1_rpy run 1.8-2.0 s, the next frame taken 20+ frames "
+        "on"))
     relocalize_after: int = num(5, lo=0, hi=BIG, doc=(
         "(ours) after this many frames in a row without a trusted pose (lost, unreadable or without depth), "
         "relocalise against the keyframes nearest the last trusted pose (slam/engine/recovery.py); 0: never"))

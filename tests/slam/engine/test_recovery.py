@@ -175,6 +175,13 @@ def test_a_gauss_newton_tracker_recovers_with_adam_where_asked(tiny_seq, monkeyp
     assert retry_config(gn).tracking.optimizer == "adam" and gn.tracking.optimizer == "gauss_newton"
     same = load_config("synthetic", ["tracking.optimizer=gauss_newton"], profile="quality")
     assert retry_config(same) is same
+    # a real-time run's recovery is its tracker's own unless realtime_recovery_optimizer asks for Adam
+    live = load_config("synthetic", ["tracking.optimizer=gauss_newton", "tracking.recovery_optimizer=adam",
+                                     "data.realtime=true"], profile="quality")
+    assert retry_config(live) is live
+    live_adam = load_config("synthetic", ["tracking.optimizer=gauss_newton", "data.realtime=true",
+                                          "tracking.realtime_recovery_optimizer=adam"], profile="quality")
+    assert retry_config(live_adam).tracking.optimizer == "adam"
     seen, real = [], recovery.track_frame
 
     def spy(*a, iters=None, **k):
