@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from slam.core.optim import adam
 from slam.core.pose import matrix_to_pose, pose_to_matrix
@@ -39,12 +40,14 @@ def move_keyframes(keyframes: KeyframeStore, before: np.ndarray, after: np.ndarr
     return largest
 
 
-def refine_fields(scene, keyframes: KeyframeStore, cfg, intrinsics, generator: torch.Generator, iters: int) -> dict:
+def refine_fields(scene, keyframes: KeyframeStore, cfg, intrinsics, generator: torch.Generator, iters: int,
+                  progress: bool = False) -> dict:
     """``iters`` iterations of the mapping loss over random keyframes of the store, poses fixed (module docstring).
 
     Args:
         scene: the :class:`slam.model.scene.SceneModel` (optimised in place); keyframes: the store, poses moved.
         generator: the mapper's CPU stream (the keyframes' and the pixels' draws).
+        progress: a progress bar (it runs after the last frame's, for seconds).
 
     Returns:
         ``{"iters", "steps", "skipped", "keyframes", "loss_first", "loss_last", "seconds"}``: steps taken and skipped
@@ -57,7 +60,9 @@ def refine_fields(scene, keyframes: KeyframeStore, cfg, intrinsics, generator: t
     params = [p for g in opt.param_groups for p in g["params"]]
     take = min(mc.window_size + 1, n)
     losses, skipped = [], 0
-    for _ in range(iters if n else 0):
+    bar = tqdm(range(iters if n else 0), disable=not progress, unit="step", dynamic_ncols=True, leave=False,
+               desc=f"refining the map on {n} keyframes")
+    for _ in bar:
         pick = torch.randperm(n, generator=generator)[:take].tolist()
         frames = [keyframes.frames[i] for i in pick]
         images = [kf.float_images() for kf in frames]  # one read of each keyframe spilled to disk
@@ -82,7 +87,7 @@ def refine_fields(scene, keyframes: KeyframeStore, cfg, intrinsics, generator: t
             "seconds": time.perf_counter() - t0}
 
 
-def follow_corrected(s, odometry: np.ndarray) -> None:
+def follow_corrected(s, odometry: np.ndarray, progress: bool = False) -> None:
     """After :func:`slam.loop.closer.close_run_loops` on ``s`` (a :class:`slam.engine.system.SLAM`): when a loop
     corrected the trajectory and ``loops.refine_iters`` > 0, move the keyframes from the tracker's poses
     ``odometry`` ``[N, 4, 4]`` (the ones the graph was given) to the corrected ones, re-fit the map on them, hand
@@ -92,7 +97,7 @@ def follow_corrected(s, odometry: np.ndarray) -> None:
     if st.refined is not None or st.corrected is None or not iters or not st.loop_summary.get("loops"):
         return
     moved = move_keyframes(s.keyframes, odometry, st.corrected)
-    stats = refine_fields(s.scene, s.keyframes, s.cfg, s.intr, s.map_gen, iters)
+    stats = refine_fields(s.scene, s.keyframes, s.cfg, s.intr, s.map_gen, iters, progress)
     if s.mapper.track_scene is not s.scene:
         with torch.no_grad():
             s.mapper.track_scene.load_state_dict(s.scene.state_dict())

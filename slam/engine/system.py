@@ -226,15 +226,15 @@ class SLAM:
         st.initialized = True
         return True
 
-    def finish(self) -> None:
-        """Wait for the mapper and apply its last results, then close the loops and refine the map on them: at the end
-        of the sequence, before the outputs. Never on a stop: a checkpoint keeps the pending calls instead, so a resumed
-        run applies them on the frames the uninterrupted run would have (:mod:`slam.run.checkpoint`)."""
+    def finish(self, progress: bool = False) -> None:
+        """Wait for the mapper and apply its last results, then close the loops and refine the map on them (with a
+        bar when ``progress``): at the end of the sequence, before the outputs. Never on a stop: a checkpoint keeps the
+        pending calls instead, so a resumed run applies them where the uninterrupted run would (slam.run.checkpoint)."""
         self._apply(self.mapper.drain())
         if self.loops is not None and self.state.est:
             odometry = pose_to_matrix(torch.stack(self.state.est)).numpy()
             close_run_loops(self.loops, self.state, self.indices, odometry)
-            follow_corrected(self, odometry)  # the map too, when the loops moved the trajectory
+            follow_corrected(self, odometry, progress)  # the map too, when the loops moved the trajectory
 
     def close(self, abort: bool = False) -> None:
         """Stop the reader and the mapper (thread or process) and delete the keyframes' spill file (it can hold
@@ -282,7 +282,7 @@ class SLAM:
                 k += 1
         finally:
             bar.close()
-        self.finish()
+        self.finish(progress)
         return self.state
 
     # ----------------------------------------------------------------------------------------------- the run

@@ -93,3 +93,22 @@ def test_refitting_on_the_true_poses_repairs_a_map_built_on_drifted_ones(room):
     assert stats["loss_last"] < stats["loss_first"]
     # measured: 8.1 cm built on the drift, 4.2 re-fitted on the true poses, 7.0 re-fitted as long on the drift
     assert fixed < 0.65 * built and fixed < 0.75 * control, (built, fixed, control)
+
+
+def test_the_refinement_shows_its_progress_on_request(room, capsys):
+    """After the last frame's bar is done the refinement runs for seconds: ``progress`` gives it a bar of its own, and
+    the same steps as without one."""
+    from slam.model.scene import SceneModel
+
+    cfg, frames, aabb = room
+    poses = [np.asarray(f.pose, np.float64) for f in frames]
+    maps = []
+    for progress in (False, True):
+        torch.manual_seed(0)
+        scene = SceneModel(cfg, aabb)
+        refine_fields(scene, _store(frames, poses), cfg, frames[0].intrinsics, torch.Generator().manual_seed(0), 3,
+                      progress=progress)
+        maps.append(scene.state_dict())
+        err = capsys.readouterr().err
+        assert (f"refining the map on {len(frames)} keyframes" in err) == progress
+    assert all(torch.equal(maps[0][k], maps[1][k]) for k in maps[0])
