@@ -12,9 +12,10 @@ step; a step that does not lower the loss is refused and the damping raised.
 
 Unlike the Adam tracker (:mod:`slam.engine.tracker`) one set of pixels and one jitter of the samples is drawn per
 call, so every evaluation is of the same objective and the loss decides which step to keep. The call stops
-when a step moves the camera by less than ``gn_step_m`` metres and ``gn_step_deg`` degrees, or after ``iters``
-evaluations. Rays are kept where the starting pose sees their surface inside the box, and the outlier rule
-(``outlier_factor``) is applied once, at the start.
+when a step moves the camera by less than ``gn_step_m`` metres and ``gn_step_deg`` degrees, when the normal
+equations predict it lowers the loss by less than ``gn_min_decrease`` of it (the next one would lower it by a fraction
+of that again: Gauss-Newton near its optimum), or after ``iters`` evaluations. Rays are kept where the starting
+pose sees their surface inside the box, and the outlier rule (``outlier_factor``) is applied once, at the start.
 
 With ``tracking.gn_hessian: first`` only a round's first evaluation assembles ``H``; later ones bring ``b`` alone,
 half the loss's gradient in the tangent from one backward pass (:func:`_gradient_terms`), and the steps keep the
@@ -251,6 +252,10 @@ def _solve_round(scene, color, depth, intrinsics, T, cfg, generator, iters):
         T_new = exp_se3(step.to(T.dtype)) @ T
         it += 1
         small = (float(step[3:].norm()) < tc.gn_step_m and math.degrees(float(step[:3].norm())) < tc.gn_step_deg)
+        # the model loss + 2 g^T s + s^T H s (g = b + P e) predicts the step's decrease; under gn_min_decrease of the
+        # loss, the next step would move it by noise
+        small = small or (tc.gn_min_decrease > 0 and
+                          float(-2 * (b + P @ e) @ step - step @ Hp @ step) < tc.gn_min_decrease * loss)
         # a small step ends the round whether it is kept or not, and so does the last evaluation: the loss only
         new_data, _, new_terms = _evaluate(scene, T_new, rays, cfg, "loss" if small or it >= iters else later)
         e_new = e + step

@@ -83,6 +83,10 @@ class TrackingConfig:
         "`gn_step_deg`"))
     gn_step_deg: float = num(0.01, lo=0, hi=90.0, doc="(ours) Gauss-Newton: the rotation (degrees) of a converged "
                                                       "step (with `gn_step_m`)")
+    gn_min_decrease: float = num(0.0, lo=0, hi=1.0, doc=(
+        "(ours) Gauss-Newton: a step whose predicted loss decrease (the normal equations' quadratic model) is under "
+        "this share of the loss ends the round, its pose evaluated for the loss alone: a next step would lower it by a "
+        "fraction of that again; 0: the round ends only by `gn_step_m` / `gn_step_deg` or `gn_iters`"))
     gn_rounds: int = num(1, lo=1, hi=100, doc=(
         "(ours) Gauss-Newton rounds: each later one draws fresh pixels and redoes the outlier rule at the pose the "
         "previous one reached"))

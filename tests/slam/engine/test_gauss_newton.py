@@ -138,6 +138,40 @@ def test_the_evaluations_that_end_a_round_skip_the_jacobian_and_change_nothing(m
     assert torch.equal(skipped.pose, full.pose) and skipped.loss == full.loss and skipped.iters == full.iters
 
 
+def test_a_step_predicted_to_lower_the_loss_by_little_ends_the_round(mapped, monkeypatch):
+    """``gn_min_decrease``: a step whose decrease the normal equations' quadratic model predicts under that share of
+    the loss ends the round, its pose evaluated for the loss alone; it is the step the round without the rule takes
+    first, from 2 cm / 2 degrees off towards the truth."""
+    from slam.core.pose import exp_se3, matrix_to_pose
+    from slam.engine import gauss_newton as gn
+    from slam.engine.tracker import track_frame
+
+    s, cfg, frame = mapped
+    xi = torch.tensor([math.radians(2.0) / math.sqrt(3)] * 3 + [0.02 / math.sqrt(3)] * 3)
+    start = matrix_to_pose(exp_se3(xi) @ s.gt[5])
+    c = copy.deepcopy(cfg)
+    c.tracking.optimizer, c.tracking.gn_damping = "gauss_newton", 0.0
+    evaluate, seen = gn._evaluate, []
+    monkeypatch.setattr(gn, "_evaluate", lambda *a: seen.append((a[4] if len(a) > 4 else "loss")) or evaluate(*a))
+
+    def run(decrease, iters):
+        c.tracking.gn_min_decrease = decrease
+        seen.clear()
+        r = track_frame(s.scene, frame.color, frame.depth, s.intr, start, c, torch.Generator().manual_seed(0), iters)
+        return r, list(seen)
+
+    from slam.engine.tracking_guard import motion
+
+    one, _ = run(0.0, 3)  # one step, then the loss there
+    stopped, stopped_seen = run(1.0, 8)  # every step is under the whole loss
+    assert stopped_seen == ["loss", "hessian", "loss"] and stopped.iters == 3
+    assert torch.equal(stopped.pose, one.pose) and stopped.loss == one.loss and stopped.message == "converged"
+    truth = matrix_to_pose(s.gt[5])
+    assert motion(stopped.pose, truth)[0] < motion(start, truth)[0]
+    longer, _ = run(0.0, 8)
+    assert longer.iters > 3  # without the rule the same start takes more steps
+
+
 def test_the_fused_render_tail_gives_the_reference_normal_equations(mapped):
     import tdfields
     from slam.engine import gauss_newton as gn
