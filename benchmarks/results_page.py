@@ -111,7 +111,9 @@ def profiles() -> str:
         "kernels' load and the mapping process, reported apart). The last columns: the mean per-seed difference in "
         "ATE with its 95 % interval, and frames lost. `gentle` and `fast` are the fr1_rpy windows (pairs 125-224 "
         "and 0-124), `dev_range` pairs 0-224, `room` the bundled synthetic room, `walk300` the synthetic walk's "
-        "first 300 frames.",
+        "first 300 frames. On the fr1_rpy data the reference is 20b7b9c's `tum/fr1_rpy-cpu`, whose box stayed fixed "
+        "(`scene.grow=false`): today's `--profile quality` with the box growing, as `--data` gives it, ends the fast "
+        "window at 2.75 ± 0.11 cm, as the default does (`profile_targets/fast_window_gap.json`).",
         "", m.table(d), "",
         _source("profile_targets/profile_targets.json",
                 "python benchmarks/profile_targets.py --before <a worktree of 20b7b9c> --seeds 5 "
