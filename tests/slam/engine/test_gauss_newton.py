@@ -145,6 +145,7 @@ def test_a_step_predicted_to_lower_the_loss_by_little_ends_the_round(mapped, mon
     from slam.core.pose import exp_se3, matrix_to_pose
     from slam.engine import gauss_newton as gn
     from slam.engine.tracker import track_frame
+    from slam.engine.tracking_guard import motion
 
     s, cfg, frame = mapped
     xi = torch.tensor([math.radians(2.0) / math.sqrt(3)] * 3 + [0.02 / math.sqrt(3)] * 3)
@@ -159,8 +160,6 @@ def test_a_step_predicted_to_lower_the_loss_by_little_ends_the_round(mapped, mon
         seen.clear()
         r = track_frame(s.scene, frame.color, frame.depth, s.intr, start, c, torch.Generator().manual_seed(0), iters)
         return r, list(seen)
-
-    from slam.engine.tracking_guard import motion
 
     one, _ = run(0.0, 3)  # one step, then the loss there
     stopped, stopped_seen = run(1.0, 8)  # every step is under the whole loss
